@@ -1,0 +1,30 @@
+"""Layer 2: exact tabular solvers in NumPy float64, the ground truth for everything learned."""
+
+from tpo.tabular.bellman import ATOL, VI_TOL
+from tpo.tabular.evaluation import (
+    discounted_visitation,
+    evaluate_policy,
+    policy_gradient,
+    q_values,
+    softmax,
+)
+from tpo.tabular.lagrangian import LagrangianSolution, multiplier_bound, solve_lagrangian
+from tpo.tabular.lar import LARSolution, Solution, solve_lar
+from tpo.tabular.model import TabularTMDP
+
+__all__ = [
+    "ATOL",
+    "VI_TOL",
+    "LARSolution",
+    "LagrangianSolution",
+    "Solution",
+    "TabularTMDP",
+    "discounted_visitation",
+    "evaluate_policy",
+    "multiplier_bound",
+    "policy_gradient",
+    "q_values",
+    "softmax",
+    "solve_lagrangian",
+    "solve_lar",
+]
