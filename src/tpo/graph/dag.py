@@ -13,6 +13,7 @@ and validated on construction: every malformed input raises
 
 from __future__ import annotations
 
+import itertools
 import math
 import tomllib
 from collections.abc import Iterable, Mapping, Sequence
@@ -109,7 +110,8 @@ class ObjectiveGraph:
         resolved = [(declared[w], declared[v]) for w, v in pairs]
         etas = _slack_values(slack, len(resolved), slack_kind, gamma)
         nodes = list(dict.fromkeys(declared[n] for n in names))
-        return cls(tuple(nodes), tuple(Edge(w, v, s) for (w, v), s in zip(resolved, etas)))
+        edges_ = (Edge(w, v, s) for (w, v), s in zip(resolved, etas, strict=True))
+        return cls(tuple(nodes), tuple(edges_))
 
     @classmethod
     def chain(
@@ -150,7 +152,7 @@ class ObjectiveGraph:
             tokens = [t.strip() for t in chain.split(">")]
             if any(not t for t in tokens):
                 raise GraphError(f"empty objective name in DAG spec '{spec.strip()}'")
-            pairs.extend(zip(tokens, tokens[1:]))
+            pairs.extend(itertools.pairwise(tokens))
             if len(tokens) == 1:
                 lone.append(tokens[0])
         if not pairs:
@@ -203,8 +205,8 @@ class ObjectiveGraph:
     def with_slack(self, slack: SlackLike) -> ObjectiveGraph:
         """The same DAG with new local slack (one value, or one per edge)."""
         etas = _slack_values(slack, len(self.edges), "local", None)
-        return ObjectiveGraph(self.objectives,
-                              tuple(e._replace(slack=s) for e, s in zip(self.edges, etas)))
+        edges = (e._replace(slack=s) for e, s in zip(self.edges, etas, strict=True))
+        return ObjectiveGraph(self.objectives, tuple(edges))
 
     # ------------------------------------------------------------ serialisation
     @property

@@ -9,7 +9,11 @@ at zero slack and far below any slack a user would set.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import itertools
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -21,6 +25,7 @@ from tpo.tabular.model import TabularTMDP
 VI_TOL = 1e-10
 ATOL = 1e-7
 MAX_ITERATIONS = 1_000_000
+PARALLEL_STATES = 200_000
 
 
 def masked_max(q: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -32,36 +37,84 @@ def restricted_value_iteration(model: TabularTMDP, reward: np.ndarray, allowed: 
                                tol: float = VI_TOL) -> tuple[np.ndarray, np.ndarray, int]:
     """Solve ``V(s) = max_{a in allowed(s)} r(s, a) + gamma E[V(s')]``.
 
-    Value iteration, polished by exact policy evaluation: once the iterates
-    settle, the greedy policy is evaluated exactly and accepted when its Bellman
-    residual proves ``|V - V*| <= tol`` (residual / (1 - gamma)). Every
-    non-terminal row of ``allowed`` must have an action.
+    Value iteration, polished by exact policy evaluation: every so often the
+    greedy policy is evaluated exactly and accepted when its Bellman residual
+    proves ``|V - V*| <= tol`` (residual / (1 - gamma)). That ends the slow
+    geometric tail of value iteration as soon as the policy is right. Polishing
+    is scheduled geometrically and kept to about a quarter of the sweeping
+    time. Every non-terminal row of ``allowed`` must have an action.
 
     Returns ``(V [S], Q [S, A], iterations)``.
     """
     gamma = model.gamma
-    live = ~model.terminal
-    if not allowed[live].any(axis=1).all():
-        raise AssertionError("every live state needs an allowed action")
     allowed = allowed | model.terminal[:, None]
+    if not allowed.any(axis=1).all():
+        raise AssertionError("every live state needs an allowed action")
+    base = np.ascontiguousarray(np.where(allowed, reward, -np.inf).T)  # [A, S]
+    succ, probs = model.action_major
+    best = np.empty(model.n_states)
+
+    def sweep_block(values: np.ndarray, block: slice) -> None:
+        for a in range(model.n_actions):
+            if model.deterministic:
+                q = values[succ[a, block, 0]]
+            else:
+                q = np.einsum("sb,sb->s", probs[a, block], values[succ[a, block]])
+            q *= gamma
+            q += base[a, block]
+            if a == 0:
+                best[block] = q
+            else:
+                np.maximum(best[block], q, out=best[block])
+
+    blocks = _blocks(model.n_states)
+    with ThreadPoolExecutor(len(blocks)) as pool:
+
+        def sweep(values: np.ndarray) -> np.ndarray:
+            if len(blocks) == 1:
+                sweep_block(values, blocks[0])
+            else:
+                list(pool.map(lambda b: sweep_block(values, b), blocks))
+            return best.copy()
+
+        return _iterate(model, reward, allowed, sweep, tol)
+
+
+def _blocks(n_states: int) -> list[slice]:
+    """State blocks swept in parallel: NumPy's gathers release the GIL, so large
+    models use every core (measured 1.7x on 2 cores at 1 M states)."""
+    n = min(os.cpu_count() or 1, 8) if n_states >= PARALLEL_STATES else 1
+    edges = np.linspace(0, n_states, n + 1).astype(int)
+    return [slice(lo, hi) for lo, hi in itertools.pairwise(edges)]
+
+
+def _iterate(model: TabularTMDP, reward: np.ndarray, allowed: np.ndarray,
+             sweep: Callable[[np.ndarray], np.ndarray],
+             tol: float) -> tuple[np.ndarray, np.ndarray, int]:
+    gamma = model.gamma
     values = np.zeros(model.n_states)
-    polish_at = 1e-4
+    next_polish, polish_seconds = 8, 0.0
+    started = time.perf_counter()
     for iteration in range(1, MAX_ITERATIONS + 1):
-        q = model.backup(reward, values)
-        new = masked_max(q, allowed)
-        change = np.max(np.abs(new - values))
+        new = sweep(values)
+        bound = np.max(np.abs(new - values)) * gamma / (1 - gamma)
         values = new
-        if gamma == 0 or change * gamma <= tol * (1 - gamma):
+        if bound <= tol:
             return values, model.backup(reward, values), iteration
-        if change * gamma <= polish_at * (1 - gamma):
-            policy = np.argmax(np.where(allowed, q, -np.inf), axis=1)
-            exact = evaluate_policy(model, policy, reward)[:, 0]
-            q = model.backup(reward, exact)
-            residual = np.max(np.abs(masked_max(q, allowed) - exact))
+        if iteration >= next_polish:
+            clock = time.perf_counter()
+            q = np.where(allowed, model.backup(reward, values), -np.inf)
+            exact = evaluate_policy(model, np.argmax(q, axis=1), reward)[:, 0]
+            residual = np.max(np.abs(sweep(exact) - exact))
             if residual <= tol * (1 - gamma):
-                return exact, q, iteration
+                return exact, model.backup(reward, exact), iteration
             values = exact  # V_pi <= V*, and value iteration from it rises monotonically
-            polish_at /= 100
+            # Keep polishing to about a quarter of the time spent sweeping.
+            now = time.perf_counter()
+            polish_seconds += now - clock
+            per_sweep = (now - started - polish_seconds) / iteration
+            next_polish = iteration + max(8, iteration // 4,
+                                          int(4 * polish_seconds / max(per_sweep, 1e-9)))
     raise TPOError(f"value iteration did not converge in {MAX_ITERATIONS} iterations")
 
 

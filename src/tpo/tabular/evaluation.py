@@ -39,11 +39,33 @@ def evaluate_policy(model: TabularTMDP, policy: np.ndarray,
 
     Solves ``(I - gamma P_pi) V = R_pi`` exactly, with ``V = 0`` at terminal states.
     ``rewards`` (``[S, A]`` or ``[S, A, m]``) replaces the model's reward columns.
+    A deterministic policy in a deterministic model is evaluated by pointer
+    jumping (:func:`evaluate_paths`), any other by a sparse LU solve.
     """
     pi = policy_probs(policy, model.n_states, model.n_actions)
     r_pi = np.einsum("sa,sam->sm", pi, _rewards(model, rewards))
     r_pi[model.terminal] = 0.0
+    if model.deterministic and np.ndim(policy) == 1:
+        successor = model.successors[np.arange(model.n_states), policy, 0]
+        return evaluate_paths(successor, r_pi, model.gamma)
     return _factor(model, pi).solve(r_pi)
+
+
+def evaluate_paths(successor: np.ndarray, reward: np.ndarray, gamma: float) -> np.ndarray:
+    """``V(s) = sum_t gamma^t r(s_t)`` along ``s_{t+1} = successor[s_t]``, by pointer jumping.
+
+    After ``j`` doublings ``acc`` holds the first ``2^j`` discounted rewards and
+    ``ptr`` the state ``2^j`` steps ahead, so ``O(S log H)`` work reaches the
+    horizon ``H`` where ``gamma^H < 1e-17``: exact to float64 precision.
+    """
+    acc = np.array(reward, dtype=np.float64)
+    ptr = np.asarray(successor)
+    discount = gamma
+    while discount > 1e-17:
+        acc += discount * acc[ptr]
+        ptr = ptr[ptr]
+        discount *= discount
+    return acc
 
 
 def q_values(model: TabularTMDP, values: np.ndarray,

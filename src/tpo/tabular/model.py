@@ -33,7 +33,7 @@ class TabularTMDP:
         gamma: discount in ``[0, 1)``.
         start: the start state ``s0``.
         terminal: bool ``[S]``; terminal states are absorbing with zero reward
-            (their transition rows are ignored, their rewards must be 0).
+            (their transition rows are replaced by self-loops; their rewards must be 0).
     """
 
     successors: np.ndarray
@@ -86,10 +86,10 @@ class TabularTMDP:
             s, a, i = np.argwhere(~np.isfinite(rewards))[0]
             raise ModelError(f"non-finite reward at state {s}, action {a}, "
                              f"objective '{objectives[i]}'")
-        if np.any(rewards[terminal] != 0):
+        bad = terminal & (rewards != 0).any(axis=(1, 2))
+        if bad.any():
             raise ModelError("terminal states are absorbing with zero reward; "
-                             f"state {int(np.argwhere(terminal & (rewards != 0).any((1, 2)))[0, 0])} "
-                             "has a non-zero reward")
+                             f"state {int(np.flatnonzero(bad)[0])} has a non-zero reward")
         gamma = self.gamma
         if isinstance(gamma, bool) or not isinstance(gamma, (int, float, np.floating)) \
                 or not 0 <= gamma < 1:
@@ -99,8 +99,13 @@ class TabularTMDP:
                 or not 0 <= start < n_states:
             raise ModelError(f"start state must be an index in [0, {n_states}), got {start!r}")
         index_type = np.int32 if n_states < 2**31 else np.int64
-        object.__setattr__(self, "successors", np.ascontiguousarray(succ, dtype=index_type))
-        object.__setattr__(self, "probs", np.ascontiguousarray(probs))
+        succ = np.array(succ, dtype=index_type)
+        probs = np.array(probs)
+        succ[terminal] = np.flatnonzero(terminal)[:, None, None]
+        probs[terminal] = 0.0
+        probs[terminal, :, 0] = 1.0
+        object.__setattr__(self, "successors", succ)
+        object.__setattr__(self, "probs", probs)
         object.__setattr__(self, "rewards", np.ascontiguousarray(rewards))
         object.__setattr__(self, "objectives", objectives)
         object.__setattr__(self, "gamma", float(gamma))
@@ -143,8 +148,15 @@ class TabularTMDP:
 
     @cached_property
     def deterministic(self) -> bool:
-        """Whether every live ``(s, a)`` has a single successor."""
+        """Whether every ``(s, a)`` has a single successor."""
         return self.successors.shape[2] == 1
+
+    @cached_property
+    def action_major(self) -> tuple[np.ndarray, np.ndarray]:
+        """``successors`` and ``probs`` as contiguous ``[A, S, B]`` arrays: per-action
+        gathers over all states are what value iteration spends its time on."""
+        return (np.ascontiguousarray(self.successors.transpose(1, 0, 2)),
+                np.ascontiguousarray(self.probs.transpose(1, 0, 2)))
 
     # ------------------------------------------------------------------ algebra
     def expect(self, values: np.ndarray) -> np.ndarray:
@@ -157,17 +169,14 @@ class TabularTMDP:
         return np.einsum("sab,sabm->sam", self.probs, nxt)
 
     def backup(self, reward: np.ndarray, values: np.ndarray) -> np.ndarray:
-        """``Q(s, a) = r(s, a) + gamma * E[V(s')]``, zero at terminal states."""
-        q = reward + self.gamma * self.expect(values)
-        q[self.terminal] = 0.0
-        return q
+        """``Q(s, a) = r(s, a) + gamma * E[V(s')]`` (zero at terminal states when
+        ``reward`` is zero there and ``values`` is a solution)."""
+        return reward + self.gamma * self.expect(values)
 
     def policy_matrix(self, policy: np.ndarray) -> sp.csr_matrix:
-        """``P_pi[s, s']`` of a deterministic ``[S]`` or stochastic ``[S, A]`` policy,
-        with zero rows at terminal states (they absorb with no further reward)."""
+        """``P_pi[s, s']`` of a deterministic ``[S]`` or stochastic ``[S, A]`` policy."""
         probs = policy_probs(policy, self.n_states, self.n_actions)
         weights = probs[:, :, None] * self.probs
-        weights[self.terminal] = 0.0
         rows = np.broadcast_to(np.arange(self.n_states)[:, None, None], weights.shape)
         keep = weights > 0
         return sp.csr_matrix((weights[keep], (rows[keep], self.successors[keep])),
