@@ -20,6 +20,10 @@ class ModelError(TPOError):
     """A malformed finite TMDP (shapes, probabilities, rewards, gamma)."""
 
 
+class MapError(TPOError):
+    """A malformed navigation map."""
+
+
 class InfeasibleError(TPOError):
     """LAR found states where an objective has no admissible action.
 
