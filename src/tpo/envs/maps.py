@@ -127,7 +127,8 @@ def map_from_dict(data: dict[str, Any], source: str = "<map>") -> NavMap:
 
     unknown = set(data) - KEYS
     if unknown:
-        raise fail(f"unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(KEYS))}")
+        raise fail(f"unknown key(s) {', '.join(sorted(unknown))}; "
+                   f"allowed: {', '.join(sorted(KEYS))}")
     if "grid" not in data or not isinstance(data["grid"], str):
         raise fail("needs a 'grid' string")
     rows = [r.strip() for r in data["grid"].strip("\n").splitlines()]

@@ -1,0 +1,133 @@
+"""The ``tpo`` command line: ``tpo maps``, ``tpo solve``.
+
+Every user mistake ends in one line ``tpo: error: ...`` on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
+from tpo.errors import TPOError
+from tpo.graph import ObjectiveGraph
+from tpo.tabular import LARSolution, solve_lar
+
+EXIT_USAGE = 2
+
+
+class UsageError(TPOError):
+    """A bad command-line argument."""
+
+
+def parse_slack(text: str) -> list[float]:
+    """``"0"`` or ``"0,100"`` -> floats (the graph checks sign and count)."""
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise UsageError(f"bad --slack '{text}': give a number or comma-separated numbers"
+                         ) from None
+
+
+def check_new_file(path: str, force: bool) -> Path:
+    """Refuse to overwrite a user's file unless ``--force``."""
+    p = Path(path)
+    if p.exists() and not force:
+        raise UsageError(f"{p} exists; pass --force to overwrite it")
+    return p
+
+
+# --------------------------------------------------------------------- maps
+def cmd_maps(args: argparse.Namespace) -> int:
+    print(f"{'map':<12} {'size':>7} {'free':>6} {'max_steps':>9}  description")
+    for name in bundled_maps():
+        m = load_map(name)
+        first = m.description.split(".")[0].replace("\n", " ")
+        print(f"{name:<12} {m.shape[0]:>3}x{m.shape[1]:<3} {m.n_free:>6} {m.max_steps:>9}  "
+              f"{first}")
+    return 0
+
+
+# -------------------------------------------------------------------- solve
+def cmd_solve(args: argparse.Namespace) -> int:
+    plot = check_new_file(args.plot, args.force) if args.plot else None
+    navmap = load_map(args.map)
+    grid = grid_model(navmap, gamma=args.gamma, slip=args.slip)
+    graph = ObjectiveGraph.parse(args.dag, parse_slack(args.slack), objectives=OBJECTIVES,
+                                 slack_kind=args.slack_kind, gamma=args.gamma)
+    sol = solve_lar(grid.model, graph, relax=args.relax)
+    path = grid.rollout(sol.policy)
+    reached = bool(grid.model.terminal[grid.index[tuple(path[-1])]])
+    summary = {"map": navmap.name, **sol.summary(), "slip": args.slip,
+               "path_length": len(path) - 1, "reached_goal": reached}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print_solution(navmap.name, sol, summary)
+    if plot:
+        from tpo.envs.render import plot_paths, save_figure
+
+        title = f"{navmap.name}: {graph}, gamma {args.gamma}"
+        save_figure(plot_paths(navmap, [path], [f"greedy LAR path ({len(path) - 1} steps)"],
+                               title=title), plot)
+        if not args.json:
+            print(f"path drawn to {plot}")
+    return 0
+
+
+def print_solution(name: str, sol: LARSolution, summary: dict) -> None:
+    model = sol.model
+    print(f"map {name}: {model.n_states} states, gamma {model.gamma:g}, DAG {sol.graph}")
+    print(f"{'objective':<10} {'V*(s0)':>10} {'V^pi(s0)':>10}")
+    values, policy_values = sol.start_values(), sol.start_policy_values()
+    for n in model.objectives:
+        own = f"{values[n]:10.3f}" if n in values else f"{'-':>10}"
+        print(f"{n:<10} {own} {policy_values[n]:10.3f}")
+    print("V*: each objective's own constrained optimum; V^pi: the leaf's greedy policy.")
+    feasible = "yes" if sol.feasible else f"no, relaxed at {summary['relaxed_states']}"
+    end = "reaches the goal" if summary["reached_goal"] else "does not reach the goal"
+    print(f"feasible: {feasible}; greedy path: {summary['path_length']} steps, {end}")
+
+
+# ------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tpo", description="Multi-objective RL with prioritised, slack-tolerant objectives.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("maps", help="list the bundled maps")
+    p.set_defaults(run=cmd_maps)
+
+    p = sub.add_parser("solve", help="exact LAR solution of a map for a DAG and slack")
+    p.add_argument("--map", default="home", help="bundled map name or TOML file (default home)")
+    p.add_argument("--dag", default="M>A>G",
+                   help='objective DAG, e.g. "M>A>G" or "A>G, M>G" (default M>A>G)')
+    p.add_argument("--slack", default="0", help="one slack, or one per edge: 0,100")
+    p.add_argument("--slack-kind", choices=("local", "global"), default="local",
+                   help="local eta (default) or global delta = eta / (1 - gamma)")
+    p.add_argument("--gamma", type=float, default=0.99)
+    p.add_argument("--slip", type=float, default=0.0, help="slip probability (default 0)")
+    p.add_argument("--relax", action="store_true",
+                   help="relax infeasible states instead of failing")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plot", metavar="FILE", help="draw the greedy path to FILE (.png/.pdf)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --plot file")
+    p.set_defaults(run=cmd_solve)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.run(args)
+    except TPOError as err:
+        print(f"tpo: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

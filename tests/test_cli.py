@@ -1,0 +1,90 @@
+"""The ``tpo`` command line as a user runs it."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from tpo.cli.main import main
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "tpo.cli.main", *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_solve_json_is_one_object_with_the_documented_keys():
+    out = run("solve", "--map", "home", "--dag", "M>A>G", "--slack", "100,0", "--json")
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert data["order"] == ["monitor", "avoid", "goal"]
+    assert data["feasible"] is True
+    assert set(data["values"]) == {"monitor", "avoid", "goal"}
+    assert set(data["policy_values"]) == {"goal", "avoid", "monitor"}
+    # The hallway detour: 28 steps, never in the living room, monitor unvisited.
+    assert data["path_length"] == 28 and data["reached_goal"]
+    assert data["policy_values"]["avoid"] == pytest.approx(0.0)
+    assert data["policy_values"]["goal"] == pytest.approx(-(1 - 0.99**28) / 0.01)
+
+
+def test_solve_prints_a_table(capsys):
+    assert main(["solve", "--dag", "M>A>G", "--slack", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "monitor>avoid>goal (slack 0, 0)" in out
+    assert "does not reach the goal" in out
+
+
+def test_infeasible_problem_exits_nonzero_unless_relaxed():
+    out = run("solve", "--dag", "A>G, M>G", "--slack", "0")
+    assert out.returncode == 2
+    assert out.stderr.startswith("tpo: error: infeasible: objective 'goal'")
+    assert "Traceback" not in out.stderr
+    out = run("solve", "--dag", "A>G, M>G", "--slack", "0", "--relax", "--json")
+    assert out.returncode == 0
+    assert json.loads(out.stdout)["feasible"] is False
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--dag", "M>A>X"], "unknown objective 'X'"),
+        (["--dag", "M>A>M"], "cycle"),
+        (["--slack", "abc"], "bad --slack 'abc'"),
+        (["--slack", "1,2,3"], "got 3 slack values for 2 edge(s)"),
+        (["--slack", "-1"], "slack must be >= 0"),
+        (["--gamma", "1.5"], "gamma must be a number in [0, 1)"),
+        (["--map", "nowhere"], "no bundled map or file named 'nowhere'"),
+        (["--slip", "2"], "slip must be a probability"),
+    ],
+)
+def test_bad_arguments_give_one_line(args, message, capsys):
+    assert main(["solve", *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+def test_plot_writes_a_png_and_refuses_to_overwrite(tmp_path, capsys):
+    target = tmp_path / "path.png"
+    assert main(["solve", "--slack", "100,0", "--plot", str(target)]) == 0
+    assert target.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    before = target.stat().st_mtime_ns
+    assert main(["solve", "--plot", str(target)]) == 2
+    assert "exists; pass --force" in capsys.readouterr().err
+    assert target.stat().st_mtime_ns == before
+    assert main(["solve", "--plot", str(target), "--force"]) == 0
+
+
+def test_map_file_path(tmp_path, capsys):
+    from tpo.envs import load_map
+
+    path = tmp_path / "copy.toml"
+    path.write_text(load_map("home").to_toml())
+    assert main(["solve", "--map", str(path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["map"] == "home"
+
+
+def test_maps_lists_the_bundled_maps(capsys):
+    assert main(["maps"]) == 0
+    out = capsys.readouterr().out
+    assert "home" in out and "11x30" in out
