@@ -52,9 +52,9 @@ def restricted_value_iteration(model: TabularTMDP, reward: np.ndarray, allowed: 
         raise AssertionError("every live state needs an allowed action")
     base = np.ascontiguousarray(np.where(allowed, reward, -np.inf).T)  # [A, S]
     succ, probs = model.action_major
-    best = np.empty(model.n_states)
 
-    def sweep_block(values: np.ndarray, block: slice) -> None:
+    def sweep_block(values: np.ndarray, out: np.ndarray, block: slice) -> float:
+        best = out[block]
         for a in range(model.n_actions):
             if model.deterministic:
                 q = values[succ[a, block, 0]]
@@ -63,19 +63,19 @@ def restricted_value_iteration(model: TabularTMDP, reward: np.ndarray, allowed: 
             q *= gamma
             q += base[a, block]
             if a == 0:
-                best[block] = q
+                best[:] = q
             else:
-                np.maximum(best[block], q, out=best[block])
+                np.maximum(best, q, out=best)
+        return float(np.max(np.abs(best - values[block]), initial=0.0))
 
     blocks = _blocks(model.n_states)
     with ThreadPoolExecutor(len(blocks)) as pool:
 
-        def sweep(values: np.ndarray) -> np.ndarray:
+        def sweep(values: np.ndarray, out: np.ndarray) -> float:
+            """One Bellman sweep of ``values`` into ``out``; returns the max change."""
             if len(blocks) == 1:
-                sweep_block(values, blocks[0])
-            else:
-                list(pool.map(lambda b: sweep_block(values, b), blocks))
-            return best.copy()
+                return sweep_block(values, out, blocks[0])
+            return max(pool.map(lambda b: sweep_block(values, out, b), blocks))
 
         return _iterate(model, reward, allowed, sweep, tol)
 
@@ -89,24 +89,22 @@ def _blocks(n_states: int) -> list[slice]:
 
 
 def _iterate(model: TabularTMDP, reward: np.ndarray, allowed: np.ndarray,
-             sweep: Callable[[np.ndarray], np.ndarray],
+             sweep: Callable[[np.ndarray, np.ndarray], float],
              tol: float) -> tuple[np.ndarray, np.ndarray, int]:
     gamma = model.gamma
-    values = np.zeros(model.n_states)
+    values, spare = np.zeros(model.n_states), np.empty(model.n_states)
     next_polish, polish_seconds = 8, 0.0
     started = time.perf_counter()
     for iteration in range(1, MAX_ITERATIONS + 1):
-        new = sweep(values)
-        bound = np.max(np.abs(new - values)) * gamma / (1 - gamma)
-        values = new
-        if bound <= tol:
+        change = sweep(values, spare)
+        values, spare = spare, values
+        if change * gamma <= tol * (1 - gamma):
             return values, model.backup(reward, values), iteration
         if iteration >= next_polish:
             clock = time.perf_counter()
             q = np.where(allowed, model.backup(reward, values), -np.inf)
             exact = evaluate_policy(model, np.argmax(q, axis=1), reward)[:, 0]
-            residual = np.max(np.abs(sweep(exact) - exact))
-            if residual <= tol * (1 - gamma):
+            if sweep(exact, spare) <= tol * (1 - gamma):
                 return exact, model.backup(reward, exact), iteration
             values = exact  # V_pi <= V*, and value iteration from it rises monotonically
             # Keep polishing to about a quarter of the time spent sweeping.
