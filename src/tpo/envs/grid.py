@@ -1,0 +1,161 @@
+"""The navigation grid as a pure JAX environment (gymnax style).
+
+``reset(key, params)`` and ``step(key, state, action, params)`` are pure
+functions over :class:`GridState` and :class:`GridParams` dataclasses, so they
+jit, vmap and scan. ``step`` auto-resets: when an episode ends it returns the
+first observation of the next one and keeps the true last observation in
+``info["final_obs"]`` (needed to bootstrap at truncation). ``step_env`` is the
+step without the reset. The dynamics and rewards are those of
+:mod:`tpo.envs.grid_model`, whose exact model has the same state order as
+:meth:`GridNav.tabular_observations`.
+
+Observations are looked up in a per-map table ``[H, W, D]`` (one gather per
+step). Three encodings (see :data:`OBSERVATIONS`):
+
+- ``"factored"`` (default): one-hot row + one-hot column + the four neighbour
+  walls + in-avoid + in-monitor, ``H + W + 6`` numbers. Sharp per-row/column
+  features that an MLP combines into cells, growing with ``H + W``, not ``H * W``.
+- ``"onehot"``: one-hot cell, ``H * W`` numbers (learns reliably, scales badly).
+- ``"coords"``: row and column in ``[0, 1]`` + walls + region flags, 8 numbers.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from tpo.envs.grid_model import MOVES, GridModel, grid_model, slip_matrix
+from tpo.envs.maps import OBJECTIVES, NavMap
+from tpo.errors import MapError
+
+OBSERVATIONS = ("factored", "onehot", "coords")
+
+
+@struct.dataclass
+class GridParams:
+    """Static map data and dynamics of one navigation grid (arrays, not traced shapes)."""
+
+    walls: jax.Array  # bool [H, W]
+    avoid: jax.Array  # bool [H, W]
+    monitor: jax.Array  # bool [H, W]
+    obs_table: jax.Array  # float32 [H, W, D]
+    start: jax.Array  # int32 [2]
+    goal: jax.Array  # int32 [2]
+    max_steps: jax.Array  # int32 []
+    slip: jax.Array  # float32 []
+
+
+@struct.dataclass
+class GridState:
+    pos: jax.Array  # int32 [2], (row, col)
+    time: jax.Array  # int32 [], steps taken in this episode
+
+
+def observation_table(navmap: NavMap, kind: str = "factored") -> np.ndarray:
+    """The observation of every cell, ``float32 [H, W, D]``."""
+    h, w = navmap.shape
+    rows, cols = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    padded = np.pad(navmap.walls, 1, constant_values=True)
+    walls = np.stack([padded[1 + dr:1 + dr + h, 1 + dc:1 + dc + w] for dr, dc in MOVES], -1)
+    flags = np.stack([navmap.avoid_mask, navmap.monitor_mask], -1)
+    if kind == "factored":
+        parts = [np.eye(h)[rows], np.eye(w)[cols], walls, flags]
+    elif kind == "onehot":
+        parts = [np.eye(h * w)[rows * w + cols]]
+    elif kind == "coords":
+        parts = [np.stack([rows / max(h - 1, 1), cols / max(w - 1, 1)], -1), walls, flags]
+    else:
+        raise MapError(f"unknown observation '{kind}'; choose one of {', '.join(OBSERVATIONS)}")
+    return np.concatenate(parts, axis=-1).astype(np.float32)
+
+
+class GridNav:
+    """The multi-objective navigation grid of a map.
+
+    Rewards are vectors ``[goal, avoid, monitor]``; actions up, down, left, right.
+    """
+
+    objectives = OBJECTIVES
+    num_actions = 4
+
+    def __init__(self, navmap: NavMap, slip: float = 0.0, observation: str = "factored",
+                 max_steps: int | None = None) -> None:
+        slip_matrix(slip)  # validates
+        self.navmap = navmap
+        self.observation = observation
+        table = observation_table(navmap, observation)
+        steps = navmap.max_steps if max_steps is None else max_steps
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise MapError(f"max_steps must be a positive integer, got {steps!r}")
+        self.params = GridParams(
+            walls=jnp.asarray(navmap.walls), avoid=jnp.asarray(navmap.avoid_mask),
+            monitor=jnp.asarray(navmap.monitor_mask), obs_table=jnp.asarray(table),
+            start=jnp.asarray(navmap.start, jnp.int32), goal=jnp.asarray(navmap.goal, jnp.int32),
+            max_steps=jnp.asarray(steps, jnp.int32), slip=jnp.asarray(slip, jnp.float32))
+
+    @property
+    def obs_shape(self) -> tuple[int]:
+        return (int(self.params.obs_table.shape[-1]),)
+
+    # ------------------------------------------------------------ pure JAX API
+    @staticmethod
+    def reset(key: jax.Array, params: GridParams) -> tuple[jax.Array, GridState]:
+        """The first observation and state of an episode (the map's start)."""
+        del key  # the start is fixed
+        state = GridState(pos=params.start, time=jnp.zeros((), jnp.int32))
+        return GridNav.observe(state, params), state
+
+    @staticmethod
+    def observe(state: GridState, params: GridParams) -> jax.Array:
+        return params.obs_table[state.pos[0], state.pos[1]]
+
+    @staticmethod
+    def step_env(key: jax.Array, state: GridState, action: jax.Array, params: GridParams
+                 ) -> tuple[jax.Array, GridState, jax.Array, jax.Array, jax.Array]:
+        """One step without auto-reset: ``(obs, state, reward[3], terminated, truncated)``."""
+        k_slip, k_dir = jax.random.split(key)
+        slipped = jax.random.uniform(k_slip) < params.slip
+        other = (action + 1 + jax.random.randint(k_dir, (), 0, 3)) % 4
+        direction = jnp.where(slipped, other, action)
+        target = state.pos + jnp.asarray(MOVES, jnp.int32)[direction]
+        h, w = params.walls.shape
+        inside = (target[0] >= 0) & (target[0] < h) & (target[1] >= 0) & (target[1] < w)
+        clipped = jnp.clip(target, 0, jnp.array([h - 1, w - 1]))
+        bump = ~inside | params.walls[clipped[0], clipped[1]]
+        pos = jnp.where(bump, state.pos, clipped)
+        in_avoid = params.avoid[state.pos[0], state.pos[1]]
+        in_monitor = params.monitor[state.pos[0], state.pos[1]]
+        bumpf = bump.astype(jnp.float32)
+        reward = jnp.stack([jnp.float32(-1.0), -in_avoid.astype(jnp.float32) - bumpf,
+                            in_monitor.astype(jnp.float32) - bumpf])
+        time = state.time + 1
+        terminated = jnp.all(pos == params.goal)
+        truncated = (time >= params.max_steps) & ~terminated
+        nxt = GridState(pos=pos, time=time)
+        return GridNav.observe(nxt, params), nxt, reward, terminated, truncated
+
+    @staticmethod
+    def step(key: jax.Array, state: GridState, action: jax.Array, params: GridParams
+             ) -> tuple[jax.Array, GridState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+        """One step with auto-reset; ``info["final_obs"]`` is the true next observation."""
+        k_step, k_reset = jax.random.split(key)
+        obs, nxt, reward, terminated, truncated = GridNav.step_env(k_step, state, action, params)
+        obs_reset, state_reset = GridNav.reset(k_reset, params)
+        done = terminated | truncated
+        state = jax.tree.map(lambda r, n: jnp.where(done, r, n), state_reset, nxt)
+        return (jnp.where(done, obs_reset, obs), state, reward, terminated, truncated,
+                {"final_obs": obs})
+
+    # ------------------------------------------------------- exact evaluation
+    def tabular(self, gamma: float = 0.99) -> GridModel:
+        """The exact model of this environment (same map, slip and reward)."""
+        return grid_model(self.navmap, gamma=gamma, slip=float(self.params.slip))
+
+    def tabular_observations(self) -> np.ndarray:
+        """``[S, D]``: the observation of every state of :meth:`tabular`'s model."""
+        cells = np.argwhere(~self.navmap.walls)
+        return np.asarray(self.params.obs_table)[cells[:, 0], cells[:, 1]]
