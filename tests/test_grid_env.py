@@ -30,11 +30,11 @@ def tiny():
 
 
 def run(env, actions, key=0):
-    obs, state = env.reset(jax.random.key(key), env.params)
+    _, state = env.reset(jax.random.key(key), env.params)
     out = []
     step = jax.jit(env.step)
     for i, a in enumerate(actions):
-        obs, state, reward, term, trunc, info = step(jax.random.key(i), state,
+        _, state, reward, term, trunc, info = step(jax.random.key(i), state,
                                                      jnp.int32(a), env.params)
         out.append((np.asarray(state.pos).tolist(), np.asarray(reward).tolist(), bool(term),
                     bool(trunc), info))
@@ -89,7 +89,7 @@ def test_jit_vmap_and_scan():
         states, total = carry
         k_act, k_step = jax.random.split(key)
         actions = jax.random.randint(k_act, (n,), 0, 4)
-        obs, states, reward, term, trunc, _ = jax.vmap(
+        _, states, reward, term, trunc, _ = jax.vmap(
             env.step, in_axes=(0, 0, 0, None))(jax.random.split(k_step, n), states, actions,
                                                env.params)
         return (states, total + reward.sum(0)), (term | trunc).sum()
