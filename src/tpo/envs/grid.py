@@ -21,15 +21,14 @@ step). Three encodings (see :data:`OBSERVATIONS`):
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from tpo.envs.base import JaxEnv, nav_reward
 from tpo.envs.grid_model import MOVES, GridModel, grid_model, slip_matrix
-from tpo.envs.maps import OBJECTIVES, NavMap
+from tpo.envs.maps import NavMap
 from tpo.errors import MapError
 
 OBSERVATIONS = ("factored", "onehot", "coords")
@@ -73,13 +72,12 @@ def observation_table(navmap: NavMap, kind: str = "factored") -> np.ndarray:
     return np.concatenate(parts, axis=-1).astype(np.float32)
 
 
-class GridNav:
+class GridNav(JaxEnv):
     """The multi-objective navigation grid of a map.
 
     Rewards are vectors ``[goal, avoid, monitor]``; actions up, down, left, right.
     """
 
-    objectives = OBJECTIVES
     num_actions = 4
 
     def __init__(self, navmap: NavMap, slip: float = 0.0, observation: str = "factored",
@@ -127,28 +125,12 @@ class GridNav:
         clipped = jnp.clip(target, 0, jnp.array([h - 1, w - 1]))
         bump = ~inside | params.walls[clipped[0], clipped[1]]
         pos = jnp.where(bump, state.pos, clipped)
-        in_avoid = params.avoid[state.pos[0], state.pos[1]]
-        in_monitor = params.monitor[state.pos[0], state.pos[1]]
-        bumpf = bump.astype(jnp.float32)
-        reward = jnp.stack([jnp.float32(-1.0), -in_avoid.astype(jnp.float32) - bumpf,
-                            in_monitor.astype(jnp.float32) - bumpf])
+        reward = nav_reward(params.avoid, params.monitor, state.pos, bump)
         time = state.time + 1
         terminated = jnp.all(pos == params.goal)
         truncated = (time >= params.max_steps) & ~terminated
         nxt = GridState(pos=pos, time=time)
         return GridNav.observe(nxt, params), nxt, reward, terminated, truncated
-
-    @staticmethod
-    def step(key: jax.Array, state: GridState, action: jax.Array, params: GridParams
-             ) -> tuple[jax.Array, GridState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
-        """One step with auto-reset; ``info["final_obs"]`` is the true next observation."""
-        k_step, k_reset = jax.random.split(key)
-        obs, nxt, reward, terminated, truncated = GridNav.step_env(k_step, state, action, params)
-        obs_reset, state_reset = GridNav.reset(k_reset, params)
-        done = terminated | truncated
-        state = jax.tree.map(lambda r, n: jnp.where(done, r, n), state_reset, nxt)
-        return (jnp.where(done, obs_reset, obs), state, reward, terminated, truncated,
-                {"final_obs": obs})
 
     # ------------------------------------------------------- exact evaluation
     def tabular(self, gamma: float = 0.99) -> GridModel:

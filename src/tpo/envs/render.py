@@ -1,14 +1,15 @@
-"""Drawing maps and trajectories with matplotlib, as the paper's Figure 3 draws paths."""
+"""Drawing maps and trajectories: matplotlib figures (as the paper's Figure 3 draws
+paths) and fast RGB rasters for Gymnasium's ``render_mode="rgb_array"``.
+
+Figures are built on :class:`matplotlib.figure.Figure` directly, never through
+pyplot, so drawing touches no global backend state.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
@@ -50,7 +51,8 @@ def plot_paths(navmap: NavMap, paths: Sequence[np.ndarray], labels: Sequence[str
                colors: Sequence[str] = PATH_COLORS, title: str | None = None) -> Figure:
     """A figure of the map with the given paths."""
     h, w = navmap.shape
-    fig, ax = plt.subplots(figsize=(max(4.0, w * 0.28), max(3.0, h * 0.28 + 0.6)))
+    fig = Figure(figsize=(max(4.0, w * 0.28), max(3.0, h * 0.28 + 0.6)))
+    ax = fig.add_subplot()
     draw_map(ax, navmap)
     n = len(paths)
     for i, cells in enumerate(paths):
@@ -70,5 +72,32 @@ def save_figure(fig: Figure, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=150)
-    plt.close(fig)
     return path
+
+
+RGB = {"wall": (40, 40, 40), "free": (255, 255, 255), "avoid": (244, 166, 166),
+       "monitor": (166, 200, 244), "start": (200, 200, 200), "goal": (120, 200, 120),
+       "robot": (20, 20, 20)}
+
+
+def raster(navmap: NavMap, px: int = 12) -> np.ndarray:
+    """The map as ``uint8 [H * px, W * px, 3]``: walls, regions, start and goal cells."""
+    colors = np.empty((*navmap.shape, 3), np.uint8)
+    colors[:] = RGB["free"]
+    colors[navmap.avoid_mask] = RGB["avoid"]
+    colors[navmap.monitor_mask] = RGB["monitor"]
+    colors[navmap.start] = RGB["start"]
+    colors[navmap.goal] = RGB["goal"]
+    colors[navmap.walls] = RGB["wall"]
+    return np.repeat(np.repeat(colors, px, axis=0), px, axis=1)
+
+
+def draw_robot(image: np.ndarray, pos: np.ndarray, px: int = 12) -> np.ndarray:
+    """A copy of ``image`` with the robot as a disc at continuous ``(row, col)``
+    (cell ``(r, c)`` spans ``[r, r + 1) x [c, c + 1)``)."""
+    out = image.copy()
+    ys, xs = np.mgrid[0:image.shape[0], 0:image.shape[1]]
+    centre = np.asarray(pos, dtype=float) * px
+    disc = (ys + 0.5 - centre[0]) ** 2 + (xs + 0.5 - centre[1]) ** 2 <= (0.35 * px) ** 2
+    out[disc] = RGB["robot"]
+    return out

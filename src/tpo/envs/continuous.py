@@ -1,0 +1,154 @@
+"""Continuous-space navigation on the same maps, as a pure JAX environment.
+
+The robot is a point at a continuous ``(row, col)`` position; cell ``(r, c)``
+covers ``[r, r + 1) x [c, c + 1)`` and it starts at the centre of the map's
+start cell. An action moves it by at most ``speed`` cells:
+
+- ``"velocity"``: a 2-vector in ``[-1, 1]^2`` (``(d_row, d_col)``, scaled down
+  to unit length if longer), times ``speed``;
+- ``"heading"``: one of 8 compass headings (0 = up, clockwise), at ``speed``.
+
+A move that would end in a wall, off the grid, or cut a wall's corner is a
+*bump*: the robot stays. Optional Gaussian ``noise`` perturbs every move.
+Rewards follow the grid's per-step semantics on the cell where the step
+starts (goal -1; avoid -1 inside, -1 per bump; monitor +1 inside, -1 per bump)
+and entering the goal cell ends the episode.
+
+Observations (``4 + n_beams`` numbers): the position scaled to ``[0, 1]``,
+``n_beams`` range readings to the nearest wall along evenly spaced directions
+(divided by ``max_range``), in-avoid and in-monitor flags.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from tpo.envs.base import JaxEnv, nav_reward
+from tpo.envs.maps import NavMap
+from tpo.errors import MapError
+
+ACTION_KINDS = ("velocity", "heading")
+RAY_STEP = 0.2
+
+
+def headings(n: int) -> np.ndarray:
+    """``n`` unit vectors ``(d_row, d_col)``, clockwise from up."""
+    angle = 2 * np.pi * np.arange(n) / n
+    return np.stack([-np.cos(angle), np.sin(angle)], -1).astype(np.float32)
+
+
+@struct.dataclass
+class ContinuousParams:
+    walls: jax.Array  # bool [H, W]
+    avoid: jax.Array  # bool [H, W]
+    monitor: jax.Array  # bool [H, W]
+    start: jax.Array  # float32 [2]
+    goal: jax.Array  # int32 [2], the goal cell
+    max_steps: jax.Array  # int32 []
+    speed: jax.Array  # float32 []
+    noise: jax.Array  # float32 []
+    beams: jax.Array  # float32 [K, 2] sensor directions
+    ray_t: jax.Array  # float32 [M] distances sampled along a beam
+
+
+@struct.dataclass
+class ContinuousState:
+    pos: jax.Array  # float32 [2]
+    time: jax.Array  # int32 []
+
+
+class ContinuousNav(JaxEnv):
+    """Continuous navigation with vector rewards ``[goal, avoid, monitor]``."""
+
+    def __init__(self, navmap: NavMap, action: str = "velocity", speed: float = 0.5,
+                 noise: float = 0.0, n_beams: int = 8, max_range: float = 6.0,
+                 max_steps: int | None = None) -> None:
+        if action not in ACTION_KINDS:
+            raise MapError(f"unknown action kind '{action}'; choose velocity or heading")
+        if not 0 < speed <= 1:
+            raise MapError(f"speed must be in (0, 1] cells per step, got {speed}")
+        if noise < 0 or not np.isfinite(noise):
+            raise MapError(f"noise must be a finite number >= 0, got {noise}")
+        if n_beams < 1 or max_range <= 0:
+            raise MapError("a range sensor needs n_beams >= 1 and max_range > 0")
+        steps = int(np.ceil(navmap.max_steps / speed)) if max_steps is None else max_steps
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise MapError(f"max_steps must be a positive integer, got {steps!r}")
+        self.navmap, self.action, self.max_range = navmap, action, float(max_range)
+        self.num_actions = 8 if action == "heading" else None
+        self.action_dim = 2 if action == "velocity" else None
+        self.params = ContinuousParams(
+            walls=jnp.asarray(navmap.walls), avoid=jnp.asarray(navmap.avoid_mask),
+            monitor=jnp.asarray(navmap.monitor_mask),
+            start=jnp.asarray(navmap.start, jnp.float32) + 0.5,
+            goal=jnp.asarray(navmap.goal, jnp.int32), max_steps=jnp.asarray(steps, jnp.int32),
+            speed=jnp.float32(speed), noise=jnp.float32(noise),
+            beams=jnp.asarray(headings(n_beams)),
+            ray_t=jnp.arange(RAY_STEP, max_range + 1e-6, RAY_STEP, dtype=jnp.float32))
+
+    @property
+    def obs_shape(self) -> tuple[int]:
+        return (4 + int(self.params.beams.shape[0]),)
+
+    # ------------------------------------------------------------ pure JAX API
+    @staticmethod
+    def reset(key: jax.Array, params: ContinuousParams) -> tuple[jax.Array, ContinuousState]:
+        del key
+        state = ContinuousState(pos=params.start, time=jnp.zeros((), jnp.int32))
+        return ContinuousNav.observe(state, params), state
+
+    @staticmethod
+    def observe(state: ContinuousState, params: ContinuousParams) -> jax.Array:
+        h, w = params.walls.shape
+        points = state.pos + params.beams[:, None, :] * params.ray_t[None, :, None]  # [K, M, 2]
+        hit = _blocked(points, params.walls)
+        first = jnp.argmax(hit, axis=1)
+        distance = jnp.where(hit.any(axis=1), params.ray_t[first] - RAY_STEP / 2,
+                             params.ray_t[-1])
+        cell = jnp.floor(state.pos).astype(jnp.int32)
+        return jnp.concatenate([
+            state.pos / jnp.array([h, w], jnp.float32),
+            distance / params.ray_t[-1],
+            jnp.stack([params.avoid[cell[0], cell[1]],
+                       params.monitor[cell[0], cell[1]]]).astype(jnp.float32)])
+
+    @staticmethod
+    def displacement(action: jax.Array, params: ContinuousParams) -> jax.Array:
+        """The intended move of an action: heading index (scalar int) or velocity [2]."""
+        if jnp.ndim(action) == 0:
+            return jnp.asarray(headings(8))[action] * params.speed
+        v = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
+        return v / jnp.maximum(1.0, jnp.linalg.norm(v)) * params.speed
+
+    @staticmethod
+    def step_env(key: jax.Array, state: ContinuousState, action: jax.Array,
+                 params: ContinuousParams
+                 ) -> tuple[jax.Array, ContinuousState, jax.Array, jax.Array, jax.Array]:
+        """One step without auto-reset: ``(obs, state, reward[3], terminated, truncated)``."""
+        move = ContinuousNav.displacement(action, params)
+        move = move + params.noise * jax.random.normal(key, (2,))
+        target = state.pos + move
+        here = jnp.floor(state.pos)
+        there = jnp.floor(target)
+        corners = jnp.stack([target, jnp.stack([there[0], here[1]]) + 0.5,
+                             jnp.stack([here[0], there[1]]) + 0.5])
+        bump = _blocked(corners, params.walls).any()
+        pos = jnp.where(bump, state.pos, target)
+        reward = nav_reward(params.avoid, params.monitor, here.astype(jnp.int32), bump)
+        time = state.time + 1
+        terminated = jnp.all(jnp.floor(pos).astype(jnp.int32) == params.goal)
+        truncated = (time >= params.max_steps) & ~terminated
+        nxt = ContinuousState(pos=pos, time=time)
+        return ContinuousNav.observe(nxt, params), nxt, reward, terminated, truncated
+
+
+def _blocked(points: jax.Array, walls: jax.Array) -> jax.Array:
+    """Whether each point ``[..., 2]`` lies off the grid or in a wall cell."""
+    h, w = walls.shape
+    cell = jnp.floor(points).astype(jnp.int32)
+    inside = (cell[..., 0] >= 0) & (cell[..., 0] < h) & (cell[..., 1] >= 0) & (cell[..., 1] < w)
+    clipped = jnp.clip(cell, 0, jnp.array([h - 1, w - 1]))
+    return ~inside | walls[clipped[..., 0], clipped[..., 1]]

@@ -1,0 +1,134 @@
+"""Gymnasium / MO-Gymnasium front ends of the JAX navigation environments.
+
+The reward is a ``float32`` vector ``[goal, avoid, monitor]`` and the env has a
+``reward_space`` (and ``reward_dim``), as MO-Gymnasium defines them, so
+``mo_gymnasium`` wrappers such as ``LinearReward`` and
+``MORecordEpisodeStatistics`` work. ``terminated`` and ``truncated`` are the
+env's own (the time limit is the map's ``max_steps``). Registered ids, for
+every bundled map ``NAME``:
+
+- ``tpo/GridNav-NAME-v0``: the grid, 4 actions (``slip``, ``observation`` kwargs);
+- ``tpo/ContinuousNav-NAME-v0``: continuous velocity actions in ``[-1, 1]^2``;
+- ``tpo/ContinuousNavHeading-NAME-v0``: 8 discrete headings.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import jax
+import numpy as np
+from gymnasium import spaces
+
+from tpo.envs.base import JaxEnv
+from tpo.envs.continuous import ContinuousNav
+from tpo.envs.grid import GridNav
+from tpo.envs.maps import NavMap, load_map
+from tpo.envs.render import draw_robot, raster
+
+REWARD_LOW = np.array([-1.0, -2.0, -1.0], np.float32)
+REWARD_HIGH = np.array([-1.0, 0.0, 1.0], np.float32)
+_JITTED: dict[type, tuple[Any, Any]] = {}
+
+
+def _compiled(cls: type[JaxEnv]) -> tuple[Any, Any]:
+    """Jitted ``reset`` and ``step_env`` of an env class, shared by all its instances."""
+    if cls not in _JITTED:
+        _JITTED[cls] = (jax.jit(cls.reset), jax.jit(cls.step_env))
+    return _JITTED[cls]
+
+
+class NavEnv(gym.Env):
+    """A Gymnasium env stepping a pure JAX navigation env one transition at a time."""
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
+    CELL_PX = 12
+
+    def __init__(self, jax_env: GridNav | ContinuousNav, observation_space: spaces.Box,
+                 action_space: spaces.Space, render_mode: str | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.jax_env = jax_env
+        self.navmap: NavMap = jax_env.navmap
+        self.observation_space = observation_space
+        self.action_space = action_space
+        self.reward_space = spaces.Box(REWARD_LOW, REWARD_HIGH, dtype=np.float32)
+        self.reward_dim = 3
+        self.objectives = jax_env.objectives
+        self.render_mode = render_mode
+        self._reset, self._step = _compiled(type(jax_env))
+        self._state = None
+        self._background = raster(self.navmap, self.CELL_PX)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        del state["_reset"], state["_step"]  # jitted functions; rebuilt on unpickling
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._reset, self._step = _compiled(type(self.jax_env))
+
+    def _key(self) -> jax.Array:
+        return jax.random.key(int(self.np_random.integers(2**31)))
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None
+              ) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        obs, self._state = self._reset(self._key(), self.jax_env.params)
+        return np.asarray(obs), {}
+
+    def step(self, action: Any) -> tuple[np.ndarray, np.ndarray, bool, bool, dict]:
+        if self._state is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        obs, self._state, reward, terminated, truncated = self._step(
+            self._key(), self._state, self._jax_action(action), self.jax_env.params)
+        return (np.asarray(obs), np.asarray(reward, np.float32), bool(terminated),
+                bool(truncated), {})
+
+    def _jax_action(self, action: Any) -> Any:
+        return np.int32(action)
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        if self._state is None:
+            return self._background.copy()
+        return draw_robot(self._background, self._robot_position(), self.CELL_PX)
+
+    def _robot_position(self) -> np.ndarray:
+        return np.asarray(self._state.pos, dtype=float)
+
+
+class GridNavEnv(NavEnv):
+    """``tpo/GridNav-*``: the navigation grid."""
+
+    def __init__(self, map: str = "home", slip: float = 0.0, observation: str = "factored",
+                 max_steps: int | None = None, render_mode: str | None = None) -> None:
+        env = GridNav(load_map(map), slip=slip, observation=observation, max_steps=max_steps)
+        table = np.asarray(env.params.obs_table)
+        box = spaces.Box(table.min(), table.max(), env.obs_shape, np.float32)
+        super().__init__(env, box, spaces.Discrete(4), render_mode)
+
+    def _robot_position(self) -> np.ndarray:
+        return np.asarray(self._state.pos, dtype=float) + 0.5
+
+
+class ContinuousNavEnv(NavEnv):
+    """``tpo/ContinuousNav-*``: continuous position; velocity or heading actions."""
+
+    def __init__(self, map: str = "home", action: str = "velocity", speed: float = 0.5,
+                 noise: float = 0.0, n_beams: int = 8, max_range: float = 6.0,
+                 max_steps: int | None = None, render_mode: str | None = None) -> None:
+        env = ContinuousNav(load_map(map), action=action, speed=speed, noise=noise,
+                            n_beams=n_beams, max_range=max_range, max_steps=max_steps)
+        box = spaces.Box(0.0, 1.0, env.obs_shape, np.float32)
+        acts = (spaces.Discrete(8) if action == "heading"
+                else spaces.Box(-1.0, 1.0, (2,), np.float32))
+        super().__init__(env, box, acts, render_mode)
+
+    def _jax_action(self, action: Any) -> Any:
+        if isinstance(self.action_space, spaces.Discrete):
+            return np.int32(action)
+        return np.asarray(action, np.float32).reshape(2)

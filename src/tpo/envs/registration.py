@@ -1,0 +1,26 @@
+"""Gymnasium ids of the navigation envs, registered when :mod:`tpo.envs` is imported
+(without importing JAX: the entry points load on ``gymnasium.make``)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+from tpo.envs.maps import bundled_maps
+
+
+def register_envs(maps: list[str] | None = None) -> list[str]:
+    """Register ``tpo/GridNav-NAME-v0``, ``tpo/ContinuousNav-NAME-v0`` and
+    ``tpo/ContinuousNavHeading-NAME-v0`` for every map (default: the bundled ones).
+    Idempotent; returns the ids."""
+    ids = []
+    for name in bundled_maps() if maps is None else maps:
+        for env_id, entry, kwargs in (
+            (f"tpo/GridNav-{name}-v0", "GridNavEnv", {}),
+            (f"tpo/ContinuousNav-{name}-v0", "ContinuousNavEnv", {}),
+            (f"tpo/ContinuousNavHeading-{name}-v0", "ContinuousNavEnv", {"action": "heading"}),
+        ):
+            if env_id not in gym.registry:
+                gym.register(env_id, entry_point=f"tpo.envs.gym_envs:{entry}",
+                             kwargs={"map": name, **kwargs})
+            ids.append(env_id)
+    return ids

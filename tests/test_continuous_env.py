@@ -1,0 +1,116 @@
+"""The continuous-space navigation env: moves, collisions, rewards, range sensors."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tpo.envs import load_map, parse_map
+from tpo.envs.continuous import ContinuousNav, headings
+from tpo.errors import MapError
+
+ROOM = '''
+max_steps = 6
+grid = """
+######
+#S...#
+#..#.#
+#...G#
+######
+"""
+avoid = [[1, 2, 1, 2]]
+monitor = [[3, 1, 3, 2]]
+'''
+
+
+def play(env, actions):
+    _, state = env.reset(jax.random.key(0), env.params)
+    step = jax.jit(env.step_env)
+    out = []
+    for i, a in enumerate(actions):
+        obs, state, reward, term, trunc = step(jax.random.key(i), state, jnp.asarray(a),
+                                               env.params)
+        out.append((np.asarray(state.pos).tolist(), np.asarray(reward).tolist(), bool(term),
+                    bool(trunc), np.asarray(obs)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def room():
+    return ContinuousNav(parse_map(ROOM), speed=0.5, max_range=4.0)
+
+
+def test_velocity_moves_and_rewards(room):
+    steps = play(room, [[0.0, 1.0], [0.0, 1.0], [0.0, 1.0]])
+    assert [s[0] for s in steps] == [[1.5, 2.0], [1.5, 2.5], [1.5, 3.0]]
+    # Rewards are paid on the cell where the step starts: (1,1), (1,2) in avoid, (1,2).
+    assert [s[1] for s in steps] == [[-1, 0, 0], [-1, -1, 0], [-1, -1, 0]]
+
+
+def test_long_velocity_is_scaled_to_speed(room):
+    (pos, *_), = play(room, [[1.0, 1.0]])
+    assert np.allclose(pos, np.array([1.5, 1.5]) + 0.5 / np.sqrt(2))
+
+
+def test_walls_and_the_border_bump(room):
+    steps = play(room, [[-1.0, 0.0], [-1.0, 0.0]])  # up from row 1.5: 1.0 is free, 0.5 is wall
+    assert steps[0][0] == [1.0, 1.5] and steps[0][1] == [-1, 0, 0]
+    assert steps[1][0] == [1.0, 1.5] and steps[1][1] == [-1, -1, -1]
+
+
+def test_no_corner_cutting(room):
+    # From cell (1, 3) diagonally down-left into the free cell (2, 2) would slip past the
+    # corner of the wall at (2, 3): it bumps. The same move one column left is fine.
+    _, state = room.reset(jax.random.key(0), room.params)
+    move = jnp.array([1.0, -1.0])
+    _, nxt, reward, *_ = room.step_env(jax.random.key(0), state.replace(pos=jnp.array([1.9, 3.1])),
+                                       move, room.params)
+    assert np.allclose(np.asarray(nxt.pos), [1.9, 3.1]) and float(reward[1]) == -1.0
+    _, nxt, reward, *_ = room.step_env(jax.random.key(0), state.replace(pos=jnp.array([1.9, 2.1])),
+                                       move, room.params)
+    assert np.allclose(np.asarray(nxt.pos), [1.9 + 0.5**1.5, 2.1 - 0.5**1.5])
+
+
+def test_heading_actions(room):
+    env = ContinuousNav(parse_map(ROOM), action="heading", speed=0.5)
+    steps = play(env, [2, 4])  # right, then down
+    assert steps[0][0] == [1.5, 2.0]
+    assert steps[1][0] == [2.0, 2.0]
+    assert np.allclose(headings(4), [[-1, 0], [0, 1], [1, 0], [0, -1]], atol=1e-6)
+
+
+def test_goal_terminates_with_the_grid_rewards():
+    env = ContinuousNav(parse_map(ROOM), speed=1.0)
+    steps = play(env, [[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.0, 1.0], [0.0, 1.0]])
+    assert [s[0] for s in steps] == [[2.5, 1.5], [3.5, 1.5], [3.5, 2.5], [3.5, 3.5], [3.5, 4.5]]
+    # Steps start in (1,1), (2,1), (3,1) and (3,2) (monitor), (3,3).
+    assert [s[1] for s in steps] == [[-1, 0, 0], [-1, 0, 0], [-1, 0, 1], [-1, 0, 1], [-1, 0, 0]]
+    assert [s[2] for s in steps] == [False] * 4 + [True]
+
+
+def test_time_limit_truncates():
+    env = ContinuousNav(parse_map(ROOM), speed=1.0)  # max_steps = ceil(6 / speed) = 6
+    steps = play(env, [[-1.0, 0.0]] * 6)
+    assert [s[3] for s in steps] == [False] * 5 + [True]
+    assert not any(s[2] for s in steps)
+
+
+def test_range_sensors_by_hand(room):
+    obs, _ = room.reset(jax.random.key(0), room.params)
+    obs = np.asarray(obs)
+    assert np.allclose(obs[:2], [1.5 / 5, 1.5 / 6])
+    beams = obs[2:10] * 4.0  # max_range 4
+    # Up and left: the wall face at 1.0 is 0.5 away; right: 3.5 to column 5; down: 2.5.
+    assert np.allclose(beams[[0, 2, 4, 6]], [0.5, 3.5, 2.5, 0.5])
+    assert beams[1] == pytest.approx(np.sqrt(0.5), abs=0.15)  # up-right, sampled every 0.2
+    assert obs[10:].tolist() == [0.0, 0.0]  # not in avoid or monitor
+
+
+def test_bad_settings_are_rejected():
+    m = load_map("home")
+    with pytest.raises(MapError, match="unknown action kind 'torque'"):
+        ContinuousNav(m, action="torque")
+    with pytest.raises(MapError, match="speed must be in"):
+        ContinuousNav(m, speed=1.5)
+    with pytest.raises(MapError, match="noise must be"):
+        ContinuousNav(m, noise=-1.0)
