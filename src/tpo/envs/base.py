@@ -25,6 +25,7 @@ class JaxEnv:
     as static methods ``(key, [state, action,] params)``; ``step`` adds auto-reset."""
 
     objectives = OBJECTIVES
+    random_reset = False  # whether ``reset`` uses its key (else ``step`` need not split)
 
     @classmethod
     def step(cls, key: jax.Array, state: Any, action: jax.Array, params: Any
@@ -34,7 +35,7 @@ class JaxEnv:
         When the episode ends the returned observation and state are the next
         episode's first; ``info["final_obs"]`` holds the true next observation.
         """
-        k_step, k_reset = jax.random.split(key)
+        k_step, k_reset = jax.random.split(key) if cls.random_reset else (key, key)
         obs, nxt, reward, terminated, truncated = cls.step_env(k_step, state, action, params)
         obs_reset, state_reset = cls.reset(k_reset, params)
         done = terminated | truncated

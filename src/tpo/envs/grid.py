@@ -112,13 +112,18 @@ class GridNav(JaxEnv):
         return params.obs_table[state.pos[0], state.pos[1]]
 
     @staticmethod
+    def _slip(key: jax.Array, action: jax.Array, slip: jax.Array) -> jax.Array:
+        """With probability ``slip`` a uniformly random other direction."""
+        bits = jax.random.bits(key, (2,))
+        slipped = bits[0] < slip * 2.0**32
+        return jnp.where(slipped, (action + 1 + bits[1] % 3) % 4, action)
+
+    @staticmethod
     def step_env(key: jax.Array, state: GridState, action: jax.Array, params: GridParams
                  ) -> tuple[jax.Array, GridState, jax.Array, jax.Array, jax.Array]:
         """One step without auto-reset: ``(obs, state, reward[3], terminated, truncated)``."""
-        k_slip, k_dir = jax.random.split(key)
-        slipped = jax.random.uniform(k_slip) < params.slip
-        other = (action + 1 + jax.random.randint(k_dir, (), 0, 3)) % 4
-        direction = jnp.where(slipped, other, action)
+        direction = jax.lax.cond(params.slip > 0, GridNav._slip, lambda *_: action,
+                                 key, action, params.slip)
         target = state.pos + jnp.asarray(MOVES, jnp.int32)[direction]
         h, w = params.walls.shape
         inside = (target[0] >= 0) & (target[0] < h) & (target[1] >= 0) & (target[1] < w)
