@@ -122,6 +122,7 @@ class GridNav(JaxEnv):
     def step_env(key: jax.Array, state: GridState, action: jax.Array, params: GridParams
                  ) -> tuple[jax.Array, GridState, jax.Array, jax.Array, jax.Array]:
         """One step without auto-reset: ``(obs, state, reward[3], terminated, truncated)``."""
+        action = jnp.asarray(action, jnp.int32)
         direction = jax.lax.cond(params.slip > 0, GridNav._slip, lambda *_: action,
                                  key, action, params.slip)
         target = state.pos + jnp.asarray(MOVES, jnp.int32)[direction]
