@@ -6,6 +6,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from tpo.envs.maps import OBJECTIVES
 
@@ -25,7 +26,8 @@ class JaxEnv:
     as static methods ``(key, [state, action,] params)``; ``step`` adds auto-reset."""
 
     objectives = OBJECTIVES
-    random_reset = False  # whether ``reset`` uses its key (else ``step`` need not split)
+    reward_low = np.array([-1.0, -2.0, -1.0], np.float32)  # per-step bounds of nav_reward
+    reward_high = np.array([-1.0, 0.0, 1.0], np.float32)
 
     @classmethod
     def step(cls, key: jax.Array, state: Any, action: jax.Array, params: Any
@@ -35,7 +37,7 @@ class JaxEnv:
         When the episode ends the returned observation and state are the next
         episode's first; ``info["final_obs"]`` holds the true next observation.
         """
-        k_step, k_reset = jax.random.split(key) if cls.random_reset else (key, key)
+        k_step, k_reset = jax.random.split(key)
         obs, nxt, reward, terminated, truncated = cls.step_env(k_step, state, action, params)
         obs_reset, state_reset = cls.reset(k_reset, params)
         done = terminated | truncated

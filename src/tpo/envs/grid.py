@@ -46,6 +46,7 @@ class GridParams:
     goal: jax.Array  # int32 [2]
     max_steps: jax.Array  # int32 []
     slip: jax.Array  # float32 []
+    starts: jax.Array  # int32 [N, 2], cells an episode may start in
 
 
 @struct.dataclass
@@ -81,7 +82,7 @@ class GridNav(JaxEnv):
     num_actions = 4
 
     def __init__(self, navmap: NavMap, slip: float = 0.0, observation: str = "factored",
-                 max_steps: int | None = None) -> None:
+                 max_steps: int | None = None, random_start: bool = False) -> None:
         slip_matrix(slip)  # validates
         self.navmap = navmap
         self.observation = observation
@@ -89,11 +90,16 @@ class GridNav(JaxEnv):
         steps = navmap.max_steps if max_steps is None else max_steps
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise MapError(f"max_steps must be a positive integer, got {steps!r}")
+        free = ~navmap.walls
+        free[navmap.goal] = False
+        starts = np.argwhere(free) if random_start else np.array([navmap.start])
+        self.random_start = random_start
         self.params = GridParams(
             walls=jnp.asarray(navmap.walls), avoid=jnp.asarray(navmap.avoid_mask),
             monitor=jnp.asarray(navmap.monitor_mask), obs_table=jnp.asarray(table),
             start=jnp.asarray(navmap.start, jnp.int32), goal=jnp.asarray(navmap.goal, jnp.int32),
-            max_steps=jnp.asarray(steps, jnp.int32), slip=jnp.asarray(slip, jnp.float32))
+            max_steps=jnp.asarray(steps, jnp.int32), slip=jnp.asarray(slip, jnp.float32),
+            starts=jnp.asarray(starts, jnp.int32))
 
     @property
     def obs_shape(self) -> tuple[int]:
@@ -102,9 +108,10 @@ class GridNav(JaxEnv):
     # ------------------------------------------------------------ pure JAX API
     @staticmethod
     def reset(key: jax.Array, params: GridParams) -> tuple[jax.Array, GridState]:
-        """The first observation and state of an episode (the map's start)."""
-        del key  # the start is fixed
-        state = GridState(pos=params.start, time=jnp.zeros((), jnp.int32))
+        """The first observation and state of an episode: the map's start, or a
+        uniformly random non-goal free cell with ``random_start``."""
+        cell = params.starts[jax.random.randint(key, (), 0, params.starts.shape[0])]
+        state = GridState(pos=cell, time=jnp.zeros((), jnp.int32))
         return GridNav.observe(state, params), state
 
     @staticmethod

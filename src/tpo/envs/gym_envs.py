@@ -27,8 +27,6 @@ from tpo.envs.grid import GridNav
 from tpo.envs.maps import NavMap, load_map
 from tpo.envs.render import draw_robot, raster
 
-REWARD_LOW = np.array([-1.0, -2.0, -1.0], np.float32)
-REWARD_HIGH = np.array([-1.0, 0.0, 1.0], np.float32)
 _JITTED: dict[type, tuple[Any, Any]] = {}
 
 
@@ -53,7 +51,7 @@ class NavEnv(gym.Env):
         self.navmap: NavMap = jax_env.navmap
         self.observation_space = observation_space
         self.action_space = action_space
-        self.reward_space = spaces.Box(REWARD_LOW, REWARD_HIGH, dtype=np.float32)
+        self.reward_space = spaces.Box(jax_env.reward_low, jax_env.reward_high, dtype=np.float32)
         self.reward_dim = 3
         self.objectives = jax_env.objectives
         self.render_mode = render_mode

@@ -1,0 +1,76 @@
+"""Evaluating a learned policy: Monte Carlo returns, and exact values where the env
+has a tabular model (the ground truth of :mod:`tpo.tabular`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from tpo.algo.networks import mode, sample
+from tpo.tabular import evaluate_policy, softmax
+
+
+def policy_output(trainer: Any, actor_params: dict, obs: jax.Array
+                  ) -> tuple[jax.Array, jax.Array]:
+    """Logits (or Gaussian mean) and log-std of the actor at ``obs``."""
+    return trainer.actor.apply({"params": actor_params}, obs)
+
+
+def exact_values(trainer: Any, actor_params: dict, env: Any, gamma: float
+                 ) -> dict[str, dict[str, float]]:
+    """Exact discounted values at the start state of the greedy and the stochastic
+    policy, by objective: ``{"greedy": {...}, "stochastic": {...}}``."""
+    grid = env.tabular(gamma)
+    logits, _ = policy_output(trainer, actor_params, jnp.asarray(env.tabular_observations()))
+    logits = np.asarray(logits, np.float64)
+    start = grid.model.start
+    out = {}
+    for name, policy in (("greedy", logits.argmax(axis=1)), ("stochastic", softmax(logits))):
+        values = evaluate_policy(grid.model, policy)[start]
+        out[name] = {n: float(v) for n, v in zip(grid.model.objectives, values, strict=True)}
+    return out
+
+
+def monte_carlo(trainer: Any, actor_params: dict, env: Any, key: jax.Array, episodes: int,
+                greedy: bool, gamma: float) -> dict[str, np.ndarray]:
+    """Returns of ``episodes`` episodes from the env's reset until it terminates or
+    truncates: ``{"undiscounted": [N, k], "discounted": [N, k], "length": [N]}``."""
+    steps = int(env.params.max_steps)
+    continuous = trainer.continuous
+
+    def episode(key):
+        k_reset, k_run = jax.random.split(key)
+        obs, state = env.reset(k_reset, env.params)
+
+        def body(carry, key):
+            obs, state, alive, ret, disc_ret, disc, length = carry
+            k_act, k_env = jax.random.split(key)
+            out, log_std = trainer.actor.apply({"params": actor_params}, obs)
+            action = mode(out, continuous) if greedy else sample(k_act, out, log_std,
+                                                                 continuous)
+            obs, state, reward, term, trunc = env.step_env(k_env, state, action, env.params)
+            ret = ret + alive * reward
+            disc_ret = disc_ret + alive * disc * reward
+            length = length + alive
+            alive = alive * (1.0 - (term | trunc))
+            return (obs, state, alive, ret, disc_ret, disc * gamma, length), None
+
+        k = len(env.objectives)
+        init = (obs, state, jnp.float32(1), jnp.zeros(k), jnp.zeros(k), jnp.float32(1),
+                jnp.float32(0))
+        (_, _, _, ret, disc_ret, _, length), _ = jax.lax.scan(
+            body, init, jax.random.split(k_run, steps))
+        return ret, disc_ret, length
+
+    ret, disc, length = jax.jit(jax.vmap(episode))(jax.random.split(key, episodes))
+    return {"undiscounted": np.asarray(ret), "discounted": np.asarray(disc),
+            "length": np.asarray(length)}
+
+
+def summarize(returns: np.ndarray, objectives: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    """Mean and standard deviation of ``[N, k]`` returns, by objective."""
+    return {n: {"mean": float(returns[:, i].mean()), "std": float(returns[:, i].std())}
+            for i, n in enumerate(objectives)}

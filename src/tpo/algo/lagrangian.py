@@ -1,0 +1,58 @@
+"""Generalized Lagrangian advantage estimation (paper §IV, Eq. 10; DESIGN.md §4).
+
+Objective ``i``'s PPO phase penalises each transition by
+``beta * sum_{(w,v) in E_i} C_wv(s_t, a_t)`` with
+``C_wv = max(0, -A_w(s_t, a_t) - eta_wv)``, where the ancestral advantage comes
+from the frozen critic of ``w``: ``A_w = r_w + gamma V_w(s_{t+1}) - V_w(s_t)``.
+
+Two forms of the advantage:
+
+- ``"penalized"`` (default): GAE on the Lagrangian reward
+  ``r_i - beta * penalty`` (Eq. 6's reward) with critic ``V_i`` trained on its
+  returns. Its gradient is Prop. 3's; a violating action's own advantage carries
+  its penalty.
+- ``"literal"``: Eq. 10 as printed, ``delta_t - gamma beta penalty(s_{t+1}, a_{t+1})``:
+  the penalty moves one step back with a factor gamma, and critic ``V_i`` learns the
+  raw returns. A violating action's penalty then never enters its own advantage, only
+  its predecessors' — kept for comparison.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+
+from tpo.algo.losses import discounted_cumsum, gae
+
+AdvantageForm = Literal["penalized", "literal"]
+ADVANTAGE_FORMS = ("penalized", "literal")
+
+
+def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax.Array,
+                         terminated: jax.Array, gamma: float) -> jax.Array:
+    """One-step advantages ``A_w = r_w + gamma (1 - term) V_w(s') - V_w(s)`` of every
+    objective, ``[..., k]``."""
+    return rewards + gamma * (1.0 - terminated[..., None]) * next_values - values
+
+
+def violations(advantages: jax.Array, parents: jax.Array, slack: jax.Array) -> jax.Array:
+    """``C_wv = max(0, -A_w - eta_wv)`` for every edge: ``[..., k] -> [..., n_edges]``."""
+    return jnp.maximum(0.0, -advantages[..., parents] - slack)
+
+
+def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Array,
+                          next_value: jax.Array, penalty: jax.Array, beta: jax.Array,
+                          terminated: jax.Array, done: jax.Array, gamma: float, lam: float
+                          ) -> tuple[jax.Array, jax.Array]:
+    """Advantages and critic targets of the phase's objective (time-major ``[T, ...]``).
+
+    ``penalty`` is ``sum_{E_i} C`` per transition; ``beta`` the multiplier.
+    """
+    if form == "penalized":
+        return gae(reward - beta * penalty, value, next_value, terminated, done, gamma, lam)
+    advantages, targets = gae(reward, value, next_value, terminated, done, gamma, lam)
+    following = jnp.concatenate([penalty[1:], jnp.zeros_like(penalty[:1])])
+    shifted = gamma * beta * following * (1.0 - done)
+    return advantages - discounted_cumsum(shifted, gamma * lam, done), targets

@@ -1,0 +1,111 @@
+"""Policy and critics: one actor, one critic per objective (Flax linen).
+
+Orthogonal initialisation as in PPO implementations (hidden gain sqrt(2),
+policy head 0.01, value heads 1). Parameters are created by :func:`init_params`
+*outside* any vmapped function: DESIGN.md §6 saw ``jit(vmap(train))`` with the
+orthogonal initialiser inside deadlock in a batched QR.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
+
+
+class MLP(nn.Module):
+    hidden: Sequence[int]
+    out: int
+    out_gain: float
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        act = ACTIVATIONS[self.activation]
+        for width in self.hidden:
+            x = act(nn.Dense(width, kernel_init=nn.initializers.orthogonal(np.sqrt(2)),
+                             bias_init=nn.initializers.zeros)(x))
+        return nn.Dense(self.out, kernel_init=nn.initializers.orthogonal(self.out_gain),
+                        bias_init=nn.initializers.zeros)(x)
+
+
+class Actor(nn.Module):
+    """Categorical logits ``[A]``, or a diagonal Gaussian's mean ``[d]`` and log-std."""
+
+    hidden: Sequence[int]
+    n_out: int
+    continuous: bool
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        out = MLP(self.hidden, self.n_out, 0.01, self.activation)(obs)
+        if not self.continuous:
+            return out, jnp.zeros(())
+        log_std = self.param("log_std", nn.initializers.zeros, (self.n_out,))
+        return out, log_std
+
+
+class Critics(nn.Module):
+    """``k`` independent value networks (stacked parameters ``[k, ...]``): ``[..., k]``.
+
+    Each head predicts its value divided by ``scale[i]`` (the objective's value
+    bound), so a tanh network reaches values of order ``1 / (1 - gamma)``
+    without huge output weights.
+    """
+
+    hidden: Sequence[int]
+    scale: Sequence[float]
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        heads = nn.vmap(MLP, variable_axes={"params": 0}, split_rngs={"params": True},
+                        in_axes=None, out_axes=-1, axis_size=len(self.scale))
+        return heads(self.hidden, 1, 1.0, self.activation)(obs)[..., 0, :] * jnp.asarray(
+            self.scale, jnp.float32)
+
+
+def init_params(key: jax.Array, actor: Actor, critics: Critics,
+                obs_shape: tuple[int, ...]) -> dict:
+    """``{"actor": ..., "critics": ...}`` for one seed (call outside vmap)."""
+    k_actor, k_critic = jax.random.split(key)
+    dummy = jnp.zeros(obs_shape, jnp.float32)
+    return {"actor": actor.init(k_actor, dummy)["params"],
+            "critics": critics.init(k_critic, dummy)["params"]}
+
+
+# ------------------------------------------------------------- distributions
+def log_prob(logits_or_mean: jax.Array, log_std: jax.Array, action: jax.Array,
+             continuous: bool) -> jax.Array:
+    if continuous:
+        z = (action - logits_or_mean) / jnp.exp(log_std)
+        return jnp.sum(-0.5 * z**2 - log_std - 0.5 * jnp.log(2 * jnp.pi), axis=-1)
+    logp = jax.nn.log_softmax(logits_or_mean)
+    return jnp.take_along_axis(logp, action[..., None].astype(jnp.int32), -1)[..., 0]
+
+
+def entropy(logits_or_mean: jax.Array, log_std: jax.Array, continuous: bool) -> jax.Array:
+    if continuous:
+        return jnp.sum(log_std + 0.5 * jnp.log(2 * jnp.pi * jnp.e)) * jnp.ones(
+            logits_or_mean.shape[:-1])
+    logp = jax.nn.log_softmax(logits_or_mean)
+    return -jnp.sum(jnp.exp(logp) * logp, axis=-1)
+
+
+def sample(key: jax.Array, logits_or_mean: jax.Array, log_std: jax.Array,
+           continuous: bool) -> jax.Array:
+    if continuous:
+        noise = jax.random.normal(key, logits_or_mean.shape)
+        return logits_or_mean + jnp.exp(log_std) * noise
+    return jax.random.categorical(key, logits_or_mean)
+
+
+def mode(logits_or_mean: jax.Array, continuous: bool) -> jax.Array:
+    """The greedy action."""
+    return logits_or_mean if continuous else jnp.argmax(logits_or_mean, axis=-1)
