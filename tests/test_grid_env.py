@@ -158,3 +158,14 @@ def test_monte_carlo_returns_agree_with_exact_evaluation(slip):
                                                                      episodes)))
     mean, se = returns.mean(0), returns.std(0) / np.sqrt(episodes)
     assert np.all(np.abs(mean - exact) <= 4 * se + 1e-3), (mean, exact, se)
+
+
+def test_random_starts_cover_every_free_cell_but_the_goal():
+    env = GridNav(parse_map(TINY), random_start=True)
+    keys = jax.random.split(jax.random.key(0), 400)
+    _, states = jax.vmap(env.reset, in_axes=(0, None))(keys, env.params)
+    cells = {tuple(p) for p in np.asarray(states.pos).tolist()}
+    assert cells == {(1, 1), (1, 2), (2, 1), (2, 2), (2, 3)}  # 6 free cells minus the goal
+    fixed = GridNav(parse_map(TINY))
+    _, states = jax.vmap(fixed.reset, in_axes=(0, None))(keys, fixed.params)
+    assert {tuple(p) for p in np.asarray(states.pos).tolist()} == {(1, 1)}

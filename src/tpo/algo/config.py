@@ -58,6 +58,7 @@ class TPOConfig:
     phase_fractions: tuple[float, ...] | None = field(default=None)
     reset_actor: bool = False
     clip_value: bool = False
+    critic_refit: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("num_envs", "num_steps", "update_epochs", "num_minibatches"):
@@ -85,6 +86,8 @@ class TPOConfig:
             raise ConfigError(f"activation must be 'tanh' or 'relu', got {self.activation!r}")
         if self.beta != "auto":
             _nonnegative("beta", self.beta)
+        if not isinstance(self.critic_refit, (int, float)) or not 0 <= self.critic_refit < 1:
+            raise ConfigError(f"critic_refit must be in [0, 1), got {self.critic_refit!r}")
         if self.advantage not in ADVANTAGE_FORMS:
             raise ConfigError(f"advantage must be one of {', '.join(ADVANTAGE_FORMS)}, "
                               f"got {self.advantage!r}")

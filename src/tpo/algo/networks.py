@@ -9,6 +9,7 @@ orthogonal initialiser inside deadlock in a batched QR.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import flax.linen as nn
 import jax
@@ -54,21 +55,56 @@ class Actor(nn.Module):
 class Critics(nn.Module):
     """``k`` independent value networks (stacked parameters ``[k, ...]``): ``[..., k]``.
 
-    Each head predicts its value divided by ``scale[i]`` (the objective's value
-    bound), so a tanh network reaches values of order ``1 / (1 - gamma)``
-    without huge output weights.
+    Each head predicts its objective's *normalised* value; :class:`ValueNorm`
+    turns it into a value.
     """
 
     hidden: Sequence[int]
-    scale: Sequence[float]
+    k: int
     activation: str = "tanh"
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         heads = nn.vmap(MLP, variable_axes={"params": 0}, split_rngs={"params": True},
-                        in_axes=None, out_axes=-1, axis_size=len(self.scale))
-        return heads(self.hidden, 1, 1.0, self.activation)(obs)[..., 0, :] * jnp.asarray(
-            self.scale, jnp.float32)
+                        in_axes=None, out_axes=-1, axis_size=self.k)
+        return heads(self.hidden, 1, 1.0, self.activation)(obs)[..., 0, :]
+
+
+class ValueNorm(NamedTuple):
+    """Running statistics of each objective's value targets, ``[k]`` each.
+
+    A critic head learns ``(V - mean) / std``; the statistics of objective ``i``
+    move only during its own phase, so they freeze with its critic.
+    """
+
+    mean: jax.Array
+    mean_sq: jax.Array
+    weight: jax.Array  # debiasing weight of the exponential averages
+
+    @classmethod
+    def init(cls, k: int) -> ValueNorm:
+        return cls(jnp.zeros(k), jnp.zeros(k), jnp.zeros(k))
+
+    def stats(self) -> tuple[jax.Array, jax.Array]:
+        w = jnp.maximum(self.weight, 1e-6)
+        mean = jnp.where(self.weight > 0, self.mean / w, 0.0)
+        var = jnp.where(self.weight > 0, self.mean_sq / w - mean**2, 1.0)
+        return mean, jnp.sqrt(jnp.maximum(var, 1e-4))
+
+    def denormalize(self, out: jax.Array) -> jax.Array:
+        mean, std = self.stats()
+        return out * std + mean
+
+    def normalize(self, values: jax.Array) -> jax.Array:
+        mean, std = self.stats()
+        return (values - mean) / std
+
+    def update(self, targets: jax.Array, pick: jax.Array, decay: float = 0.9) -> ValueNorm:
+        """Fold the batch ``targets`` (of the objective ``pick`` one-hots) into the stats."""
+        d = 1.0 - (1.0 - decay) * pick
+        return ValueNorm(self.mean * d + (1 - d) * targets.mean(),
+                         self.mean_sq * d + (1 - d) * jnp.mean(targets**2),
+                         self.weight * d + (1 - d))
 
 
 def init_params(key: jax.Array, actor: Actor, critics: Critics,

@@ -33,7 +33,16 @@ from flax import struct
 from tpo.algo.config import ConfigError, TPOConfig
 from tpo.algo.lagrangian import ancestral_advantages, lagrangian_advantages, violations
 from tpo.algo.losses import clipped_surrogate, clipped_value_loss, normalize
-from tpo.algo.networks import Actor, Critics, entropy, init_params, log_prob, sample
+from tpo.algo.networks import (
+    Actor,
+    Critics,
+    ValueNorm,
+    entropy,
+    init_params,
+    log_prob,
+    mode,
+    sample,
+)
 from tpo.graph import ObjectiveGraph
 
 
@@ -49,6 +58,7 @@ class TrainState:
     obs: jax.Array  # [E, D]
     key: jax.Array
     update: jax.Array  # int32 [], updates done
+    value_norm: ValueNorm
     episode_return: jax.Array  # [E, k] running undiscounted returns
     episode_length: jax.Array  # [E]
 
@@ -110,9 +120,7 @@ class Trainer:
         self.continuous = getattr(env, "num_actions", None) is None
         n_out = env.action_dim if self.continuous else env.num_actions
         self.actor = Actor(config.hidden, n_out, self.continuous, config.activation)
-        self.value_scale = value_bounds(env.reward_low, env.reward_high, config.gamma)
-        self.critics = Critics(config.hidden, tuple(float(v) for v in self.value_scale),
-                               config.activation)
+        self.critics = Critics(config.hidden, len(env.objectives), config.activation)
         n_phases = len(self.problem.order)
         if config.phase_fractions is not None and len(config.phase_fractions) != n_phases:
             raise ConfigError(f"phase_fractions has {len(config.phase_fractions)} values for "
@@ -128,6 +136,8 @@ class Trainer:
                                         / fractions.sum())).astype(np.int32)
         self.phase_updates = shares
         self.phase_start = np.concatenate([[0], np.cumsum(shares)]).astype(np.int32)
+        refit = np.floor(shares * config.critic_refit).astype(np.int32)
+        self.policy_updates = np.maximum(1, shares - refit).astype(np.int32)
         self.num_updates = int(self.phase_start[-1])
         self._actor_tx = self._optimizer()
         self._critic_tx = self._optimizer()
@@ -158,7 +168,8 @@ class Trainer:
             jax.random.split(k_env, e), self.env.params)
         return TrainState(params, params["actor"], self._actor_tx.init(params["actor"]),
                           self._critic_tx.init(params["critics"]), env_state, obs, k_run,
-                          jnp.zeros((), jnp.int32), jnp.zeros((e, k)), jnp.zeros((e,)))
+                          jnp.zeros((), jnp.int32), ValueNorm.init(k), jnp.zeros((e, k)),
+                          jnp.zeros((e,)))
 
     # ---------------------------------------------------------------- update
     def phase_of(self, update: jax.Array) -> jax.Array:
@@ -170,7 +181,9 @@ class Trainer:
         phase = jnp.minimum(self.phase_of(state.update), len(prob.order) - 1)
         column = jnp.asarray(prob.order)[phase]
         pick = jax.nn.one_hot(column, len(prob.objectives))
-        state, batch, episodes = self._rollout(state)
+        start = jnp.asarray(self.phase_start)[phase]
+        refit = (state.update - start) >= jnp.asarray(self.policy_updates)[phase]
+        state, batch, episodes = self._rollout(state, greedy=refit)
 
         adv_all = ancestral_advantages(batch.reward, batch.value, batch.next_value,
                                        batch.terminated, cfg.gamma)
@@ -182,7 +195,6 @@ class Trainer:
             cfg.advantage, batch.reward @ pick, batch.value @ pick, batch.next_value @ pick,
             penalty, beta, batch.terminated, batch.done, cfg.gamma, cfg.gae_lambda)
 
-        start = jnp.asarray(self.phase_start)[phase]
         first = state.update == start
         if cfg.reset_actor:
             state = state.replace(params={**state.params, "actor": _where_tree(
@@ -191,40 +203,48 @@ class Trainer:
                                 state.actor_opt)
         critic_opt = _where_tree(first, self._critic_tx.init(state.params["critics"]),
                                  state.critic_opt)
-        progress = (state.update - start) / jnp.asarray(self.phase_updates)[phase]
-        lr = cfg.learning_rate * ((1.0 - progress) if cfg.anneal_lr else 1.0)
+        progress = (state.update - start) / jnp.asarray(self.policy_updates)[phase]
+        annealed = cfg.learning_rate * ((1.0 - progress) if cfg.anneal_lr else 1.0)
+        lr = (jnp.where(refit, 0.0, annealed), jnp.where(refit, cfg.learning_rate, annealed))
 
+        value_norm = state.value_norm.update(targets, pick)
+        mean, std = value_norm.stats()
+        scale = (mean @ pick, std @ pick)
         flat = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]),
                             (batch.obs, batch.action, batch.log_prob, batch.value @ pick,
                              advantages, targets))
         key, k_epochs = jax.random.split(state.key)
         (params, actor_opt, critic_opt), losses = jax.lax.scan(
-            partial(self._epoch, pick=pick, lr=lr, data=flat),
+            partial(self._epoch, pick=pick, lr=lr, scale=scale, data=flat),
             (state.params, actor_opt, critic_opt), jax.random.split(k_epochs, cfg.update_epochs))
 
         state = state.replace(params=params, actor_opt=actor_opt, critic_opt=critic_opt,
-                              key=key, update=state.update + 1)
+                              key=key, update=state.update + 1, value_norm=value_norm)
         violating = (penalty > 0).mean()
-        metrics = {"phase": phase, "lr": lr, "penalty": penalty.mean(),
+        metrics = {"phase": phase, "refit": refit, "lr": lr[0], "penalty": penalty.mean(),
                    "violation_rate": violating, **episodes,
                    **jax.tree.map(jnp.mean, losses)}
         return state, metrics
 
-    def _rollout(self, state: TrainState) -> tuple[TrainState, Transition, dict]:
+    def _rollout(self, state: TrainState, greedy: jax.Array
+                 ) -> tuple[TrainState, Transition, dict]:
         cfg, env = self.config, self.env
         actor_p, critic_p = state.params["actor"], state.params["critics"]
+        norm = state.value_norm
 
         def step(carry, key):
             env_state, obs, ep_ret, ep_len, done_ret, done_len, done_n = carry
             k_act, k_env = jax.random.split(key)
             out, log_std = self.actor.apply({"params": actor_p}, obs)
-            value = self.critics.apply({"params": critic_p}, obs)
-            action = sample(k_act, out, log_std, self.continuous)
+            value = norm.denormalize(self.critics.apply({"params": critic_p}, obs))
+            action = jnp.where(greedy, mode(out, self.continuous),
+                               sample(k_act, out, log_std, self.continuous))
             logp = log_prob(out, log_std, action, self.continuous)
             obs2, env_state, reward, term, trunc, info = jax.vmap(
                 env.step, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_env, cfg.num_envs), env_state, action, env.params)
-            next_value = self.critics.apply({"params": critic_p}, info["final_obs"])
+            next_value = norm.denormalize(self.critics.apply({"params": critic_p},
+                                                             info["final_obs"]))
             done = term | trunc
             ep_ret, ep_len = ep_ret + reward, ep_len + 1
             d = done.astype(jnp.float32)
@@ -249,14 +269,15 @@ class Trainer:
                               episode_length=ep_len)
         return state, batch, episodes
 
-    def _epoch(self, carry, key, *, pick, lr, data):
+    def _epoch(self, carry, key, *, pick, lr, scale, data):
         cfg = self.config
         perm = jax.random.permutation(key, cfg.batch_size)
         shuffled = jax.tree.map(
             lambda x: x[perm].reshape(cfg.num_minibatches, -1, *x.shape[1:]), data)
-        return jax.lax.scan(partial(self._minibatch, pick=pick, lr=lr), carry, shuffled)
+        return jax.lax.scan(partial(self._minibatch, pick=pick, lr=lr, scale=scale), carry,
+                            shuffled)
 
-    def _minibatch(self, carry, mb, *, pick, lr):
+    def _minibatch(self, carry, mb, *, pick, lr, scale):
         cfg = self.config
         params, actor_opt, critic_opt = carry
         obs, action, old_logp, old_value, advantages, targets = mb
@@ -266,11 +287,11 @@ class Trainer:
             logp = log_prob(out, log_std, action, self.continuous)
             ent = entropy(out, log_std, self.continuous).mean()
             pg = clipped_surrogate(logp - old_logp, normalize(advantages), cfg.clip_eps)
-            scale = jnp.asarray(self.value_scale, jnp.float32) @ pick
-            value = self.critics.apply({"params": p["critics"]}, obs) @ pick
-            vl = (clipped_value_loss(value / scale, old_value / scale, targets / scale,
-                                     cfg.clip_eps) if cfg.clip_value
-                  else 0.5 * jnp.mean(((value - targets) / scale) ** 2))
+            mean, std = scale
+            out = self.critics.apply({"params": p["critics"]}, obs) @ pick
+            goal, old = (targets - mean) / std, (old_value - mean) / std
+            vl = (clipped_value_loss(out, old, goal, cfg.clip_eps) if cfg.clip_value
+                  else 0.5 * jnp.mean((out - goal) ** 2))
             total = pg - cfg.ent_coef * ent + cfg.vf_coef * vl
             kl = jnp.mean((jnp.exp(logp - old_logp) - 1) - (logp - old_logp))
             return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent,
@@ -279,11 +300,17 @@ class Trainer:
         grads, info = jax.grad(loss_fn, has_aux=True)(params)
         a_up, actor_opt = self._actor_tx.update(grads["actor"], actor_opt)
         c_up, critic_opt = self._critic_tx.update(grads["critics"], critic_opt)
+        actor_lr, critic_lr = lr
         params = {"actor": optax.apply_updates(params["actor"], jax.tree.map(
-                      lambda u: -lr * u, a_up)),
+                      lambda u: -actor_lr * u, a_up)),
                   "critics": optax.apply_updates(params["critics"], jax.tree.map(
-                      lambda u: -lr * u, c_up))}
+                      lambda u: -critic_lr * u, c_up))}
         return (params, actor_opt, critic_opt), info
+
+    def values(self, state: TrainState, obs: jax.Array) -> jax.Array:
+        """Every critic's value ``[..., k]`` at ``obs``."""
+        return state.value_norm.denormalize(
+            self.critics.apply({"params": state.params["critics"]}, obs))
 
     # ------------------------------------------------------------------- run
     def run(self, state: TrainState, slack: jax.Array, num_updates: int

@@ -17,6 +17,12 @@ step). Three encodings (see :data:`OBSERVATIONS`):
   features that an MLP combines into cells, growing with ``H + W``, not ``H * W``.
 - ``"onehot"``: one-hot cell, ``H * W`` numbers (learns reliably, scales badly).
 - ``"coords"``: row and column in ``[0, 1]`` + walls + region flags, 8 numbers.
+
+``benchmarks/bench_observations.py`` measured which of them PPO learns from
+(README, "Observations"). ``random_start=True`` starts episodes in a uniformly
+random non-goal free cell: an exploring-starts training distribution (every
+state is visited, so critics are fit everywhere); LAR's policies are optimal at
+every state, so it does not change what is learned, only how fast.
 """
 
 from __future__ import annotations

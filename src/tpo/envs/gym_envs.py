@@ -103,8 +103,10 @@ class GridNavEnv(NavEnv):
     """``tpo/GridNav-*``: the navigation grid."""
 
     def __init__(self, map: str = "home", slip: float = 0.0, observation: str = "factored",
-                 max_steps: int | None = None, render_mode: str | None = None) -> None:
-        env = GridNav(load_map(map), slip=slip, observation=observation, max_steps=max_steps)
+                 max_steps: int | None = None, random_start: bool = False,
+                 render_mode: str | None = None) -> None:
+        env = GridNav(load_map(map), slip=slip, observation=observation, max_steps=max_steps,
+                      random_start=random_start)
         table = np.asarray(env.params.obs_table)
         box = spaces.Box(table.min(), table.max(), env.obs_shape, np.float32)
         super().__init__(env, box, spaces.Discrete(4), render_mode)

@@ -1,0 +1,88 @@
+"""PPO and TPO's pure functions against numbers worked out by hand."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tpo.algo.lagrangian import ancestral_advantages, lagrangian_advantages, violations
+from tpo.algo.losses import (
+    clipped_surrogate,
+    clipped_value_loss,
+    discounted_cumsum,
+    gae,
+    normalize,
+)
+
+R = jnp.array([1.0, 2.0, 3.0])
+V = jnp.array([0.5, 1.0, 1.5])
+V_NEXT = jnp.array([1.0, 1.5, 2.0])
+
+
+def test_gae_stops_bootstrapping_at_termination():
+    # gamma = lambda = 1/2. delta = (1 + .5 - .5, 2 + .75 - 1, 3 - 1.5) = (1, 1.75, 1.5)
+    # A2 = 1.5; A1 = 1.75 + .25 * 1.5 = 2.125; A0 = 1 + .25 * 2.125 = 1.53125
+    term = jnp.array([0.0, 0.0, 1.0])
+    adv, targets = gae(R, V, V_NEXT, term, term, 0.5, 0.5)
+    assert np.allclose(adv, [1.53125, 2.125, 1.5])
+    assert np.allclose(targets, [2.03125, 3.125, 3.0])
+
+
+def test_gae_bootstraps_at_truncation_but_cuts_the_trace():
+    # Truncated at t=1: delta_1 still bootstraps from V(final obs) = 1.5, but A_1 does not
+    # reach into the next episode. delta_2 = 3 + .5 * 2 - 1.5 = 2.5.
+    adv, _ = gae(R, V, V_NEXT, jnp.zeros(3), jnp.array([0.0, 1.0, 0.0]), 0.5, 0.5)
+    assert np.allclose(adv, [1.0 + 0.25 * 1.75, 1.75, 2.5])
+
+
+def test_discounted_cumsum():
+    out = discounted_cumsum(jnp.array([1.0, 1.0, 1.0, 1.0]), 0.5, jnp.array([0, 1, 0, 0.0]))
+    assert np.allclose(out, [1.5, 1.0, 1.5, 1.0])
+
+
+def test_clipped_surrogate():
+    # ratios (0.5, 1.5), advantages (1, -1), clip 0.2: min(0.5, 0.8) = 0.5 and
+    # min(-1.5, -1.2) = -1.5; the loss is -mean = 0.5.
+    loss = clipped_surrogate(jnp.log(jnp.array([0.5, 1.5])), jnp.array([1.0, -1.0]), 0.2)
+    assert float(loss) == pytest.approx(0.5)
+
+
+def test_clipped_value_loss_is_pessimistic():
+    # V = 2 moved from 1 by more than 0.2: clipped 1.2 is further from 3 -> 0.5 * 1.8^2.
+    loss = clipped_value_loss(jnp.array([2.0]), jnp.array([1.0]), jnp.array([3.0]), 0.2)
+    assert float(loss) == pytest.approx(1.62)
+
+
+def test_normalize():
+    out = normalize(jnp.array([1.0, 3.0]))
+    assert np.allclose(out, [-1.0, 1.0], atol=1e-6)
+
+
+def test_ancestral_advantages_and_violations():
+    adv = ancestral_advantages(jnp.array([[1.0, 0.0]]), jnp.array([[2.0, 1.0]]),
+                               jnp.array([[3.0, 4.0]]), jnp.array([1.0]), 0.5)
+    assert np.allclose(adv, [[-1.0, -1.0]])  # terminated: no bootstrap
+    # A = (0.5, -2, -0.3); edges with parents (1, 2, 0) and slack (0.5, 0, 1):
+    # C = (max(0, 2 - .5), max(0, .3 - 0), max(0, -.5 - 1)) = (1.5, 0.3, 0)
+    c = violations(jnp.array([0.5, -2.0, -0.3]), jnp.array([1, 2, 0]),
+                   jnp.array([0.5, 0.0, 1.0]))
+    assert np.allclose(c, [1.5, 0.3, 0.0])
+
+
+def test_penalized_form_is_gae_on_the_lagrangian_reward():
+    # penalty (0, 1, 0), beta 2: rewards (1, 0, 3). delta = (1, -0.25, 1.5);
+    # A2 = 1.5, A1 = -0.25 + .25 * 1.5 = 0.125, A0 = 1 + .25 * .125 = 1.03125.
+    term = jnp.array([0.0, 0.0, 1.0])
+    adv, targets = lagrangian_advantages("penalized", R, V, V_NEXT, jnp.array([0.0, 1.0, 0.0]),
+                                         2.0, term, term, 0.5, 0.5)
+    assert np.allclose(adv, [1.03125, 0.125, 1.5])
+    assert np.allclose(targets, adv + V)
+
+
+def test_literal_form_moves_the_penalty_one_step_back():
+    # Eq. 10: delta_t - gamma beta C(s_{t+1}, a_{t+1}). The penalty of step 1 (C = 1) reaches
+    # step 0 as 0.5 * 2 * 1 = 1 and is absent from step 1's own advantage.
+    term = jnp.array([0.0, 0.0, 1.0])
+    adv, targets = lagrangian_advantages("literal", R, V, V_NEXT, jnp.array([0.0, 1.0, 0.0]),
+                                         2.0, term, term, 0.5, 0.5)
+    assert np.allclose(adv, [1.53125 - 1.0, 2.125, 1.5])
+    assert np.allclose(targets, [2.03125, 3.125, 3.0])  # raw returns

@@ -1,0 +1,118 @@
+"""The TPO trainer: plain PPO learns, phases freeze their critics, seeds vmap."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tpo.algo.config import ConfigError, TPOConfig
+from tpo.algo.evaluate import exact_values, monte_carlo, summarize
+from tpo.algo.train import Trainer
+from tpo.envs import OBJECTIVES, load_map
+from tpo.envs.grid import GridNav
+from tpo.graph import ObjectiveGraph
+from tpo.tabular import solve_lar
+
+
+@pytest.fixture(scope="module")
+def small():
+    navmap = load_map("small")
+    return GridNav(navmap, random_start=True), GridNav(navmap)
+
+
+@pytest.mark.slow
+def test_plain_ppo_learns_the_goal_exactly(small):
+    train_env, eval_env = small
+    graph = ObjectiveGraph.parse("goal")
+    config = TPOConfig()
+    trainer = Trainer(train_env, graph, config, 200_000)
+    state = trainer.init(jax.random.key(0))
+    state, metrics = jax.jit(trainer.run, static_argnums=2)(state, trainer.slack_array(),
+                                                            trainer.num_updates)
+    exact = exact_values(trainer, state.params["actor"], eval_env, config.gamma)
+    best = solve_lar(eval_env.tabular(config.gamma).model, graph).start_values()["goal"]
+    assert exact["greedy"]["goal"] == pytest.approx(best, abs=1e-6)  # the 8-step optimum
+    mc = monte_carlo(trainer, state.params["actor"], eval_env, jax.random.key(1), 16,
+                     greedy=True, gamma=config.gamma)
+    assert np.all(mc["length"] == 8)
+    assert summarize(mc["undiscounted"], OBJECTIVES)["goal"]["mean"] == -8.0
+    assert np.asarray(metrics["phase"]).max() == 0
+
+
+def test_later_phases_leave_earlier_critics_frozen(small):
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("M>A>G", 0, objectives=OBJECTIVES)
+    trainer = Trainer(train_env, graph, TPOConfig(num_envs=4, num_steps=32), 3 * 4 * 32 * 2)
+    state = trainer.init(jax.random.key(0))
+    run = jax.jit(trainer.run, static_argnums=2)
+    monitor = OBJECTIVES.index("monitor")
+    after_first, _ = run(state, trainer.slack_array(), int(trainer.phase_start[1]))
+    final, metrics = run(after_first, trainer.slack_array(),
+                         trainer.num_updates - int(trainer.phase_start[1]))
+    head = jax.tree.map(lambda x: x[monitor], after_first.params["critics"])
+    later = jax.tree.map(lambda x: x[monitor], final.params["critics"])
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(head),
+                                                    jax.tree.leaves(later), strict=True))
+    assert np.asarray(metrics["phase"]).tolist() == [1, 1, 2, 2]
+    goal = OBJECTIVES.index("goal")
+    first_goal = jax.tree.map(lambda x: x[goal], after_first.params["critics"])
+    trained_goal = jax.tree.map(lambda x: x[goal], final.params["critics"])
+    assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first_goal),
+                                                        jax.tree.leaves(trained_goal),
+                                                        strict=True))
+
+
+def test_seeds_and_slacks_vmap_in_one_compiled_run(small):
+    """DESIGN.md §6's hang: parameters initialised outside the vmapped function."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("A>G", 0, objectives=OBJECTIVES)
+    trainer = Trainer(train_env, graph, TPOConfig(num_envs=4, num_steps=16), 2 * 4 * 16 * 2)
+    states = [trainer.init(jax.random.key(s)) for s in range(3)]
+    states = jax.tree.map(lambda *x: jnp.stack(x), *states)
+    slacks = jnp.array([[0.0], [1.0], [100.0]])
+    run = jax.jit(jax.vmap(lambda s, eta: trainer.run(s, eta, trainer.num_updates)))
+    final, metrics = run(states, slacks)
+    assert np.asarray(final.update).tolist() == [4, 4, 4]
+    assert metrics["penalty"].shape == (3, 4)
+    first = jax.tree.leaves(final.params["actor"])[0]
+    assert not np.allclose(first[0], first[1])  # seeds differ
+
+
+def test_phase_split_and_bad_budgets(small):
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("M>A>G", objectives=OBJECTIVES)
+    config = TPOConfig(num_envs=4, num_steps=8, phase_fractions=(1, 1, 2))
+    trainer = Trainer(train_env, graph, config, 4 * 8 * 40)
+    assert trainer.phase_updates.tolist() == [10, 10, 20]
+    with pytest.raises(ConfigError, match="total_timesteps must be an integer >= 96"):
+        Trainer(train_env, graph, config, 50)
+    with pytest.raises(ConfigError, match="phase_fractions has 2 values for 3 phase"):
+        Trainer(train_env, graph, TPOConfig(phase_fractions=(1, 1)), 10**6)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"num_envs": 0}, "num_envs must be a positive integer"),
+        ({"num_minibatches": 3}, "num_minibatches (3) must divide"),
+        ({"learning_rate": -1.0}, "learning_rate must be a finite number > 0"),
+        ({"gamma": 1.0}, "gamma must be in [0, 1)"),
+        ({"beta": -2.0}, "beta must be a finite number >= 0"),
+        ({"advantage": "eq10"}, "advantage must be one of penalized, literal"),
+        ({"hidden": (64, 0)}, "hidden must be positive layer widths"),
+        ({"critic_refit": 1.0}, "critic_refit must be in [0, 1)"),
+    ],
+)
+def test_bad_config_is_rejected(kwargs, message):
+    with pytest.raises(ConfigError) as err:
+        TPOConfig(**kwargs)
+    assert message in str(err.value)
+
+
+def test_config_round_trips_through_toml_text():
+    config = TPOConfig(hidden=(32, 32), beta="auto", phase_fractions=(1.0, 2.0))
+    text = "\n".join(f"{k} = {v!r}".replace("'", '"').replace("True", "true")
+                     .replace("False", "false") for k, v in config.to_dict().items())
+    assert TPOConfig.from_toml(text) == config
+    with pytest.raises(ConfigError, match="unknown config key"):
+        TPOConfig.from_dict({"lr": 1.0})
