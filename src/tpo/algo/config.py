@@ -37,6 +37,12 @@ class TPOConfig:
             see :mod:`tpo.algo.lagrangian`.
         phase_fractions: share of the timesteps of each phase in topological
             order (default: equal).
+        reset_actor: start every phase from the initial actor instead of carrying
+            the policy over (Algorithm 1 carries it; see docs/notes/tpo-learning.md).
+        clip_value: PPO's clipped value loss (off: it stalls critics of large values).
+        critic_refit: share of each phase's updates, at its end, that roll out the
+            greedy policy and train only the critic, so the frozen critic values the
+            phase's final greedy policy.
     """
 
     num_envs: int = 16

@@ -146,10 +146,6 @@ class Trainer:
         return optax.chain(optax.clip_by_global_norm(self.config.max_grad_norm),
                            optax.scale_by_adam(eps=1e-5))
 
-    @property
-    def timesteps_per_update(self) -> int:
-        return self.config.batch_size
-
     # ------------------------------------------------------------------ init
     def init_params(self, key: jax.Array) -> dict:
         """Network parameters of one seed (outside any vmap: DESIGN.md §6)."""
@@ -318,10 +314,9 @@ class Trainer:
         """``num_updates`` updates from ``state`` (one ``lax.scan``; jit or vmap it)."""
         return jax.lax.scan(lambda s, _: self.update(s, slack), state, None, length=num_updates)
 
-    def slack_array(self, graph: ObjectiveGraph | None = None) -> jax.Array:
-        """The slack vector ``[n_edges]`` of ``graph`` (default: the trainer's)."""
-        g = self.problem.graph if graph is None else graph
-        return jnp.asarray(g.slacks, jnp.float32)
+    def slack_array(self) -> jax.Array:
+        """The graph's slack as the ``[n_edges]`` vector :meth:`run` takes."""
+        return jnp.asarray(self.problem.graph.slacks, jnp.float32)
 
 
 def value_bounds(reward_low: np.ndarray, reward_high: np.ndarray, gamma: float) -> np.ndarray:
