@@ -1,0 +1,216 @@
+"""A Stable-Baselines3-style front end: ``TPO(env, graph).learn(n)``, ``predict``,
+``save`` / ``TPO.load``, ``evaluate``.
+
+Saved models are a directory holding ``model.json`` (format version, config,
+DAG spec and slack, the environment's constructor arguments with the map's
+TOML text) and ``params.msgpack`` (Flax ``serialization.to_bytes`` of the actor
+and critic parameters and the critics' value normalisation).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import serialization
+
+from tpo.algo.config import TPOConfig
+from tpo.algo.evaluate import exact_values, monte_carlo, summarize
+from tpo.algo.networks import ValueNorm, mode, sample
+from tpo.algo.train import Trainer, TrainState
+from tpo.envs import load_map, parse_map
+from tpo.envs.continuous import ContinuousNav
+from tpo.envs.grid import GridNav
+from tpo.errors import TPOError
+from tpo.graph import ObjectiveGraph
+from tpo.tabular import solve_lar
+
+FORMAT = 1
+Callback = Callable[[dict[str, np.ndarray], int], None]
+
+
+def env_spec(env: GridNav | ContinuousNav) -> dict[str, Any]:
+    """Constructor arguments that rebuild ``env`` (the map travels as TOML text)."""
+    if isinstance(env, GridNav):
+        return {"kind": "grid", "map": env.navmap.to_toml(), "slip": float(env.params.slip),
+                "observation": env.observation, "max_steps": int(env.params.max_steps),
+                "random_start": env.random_start}
+    if isinstance(env, ContinuousNav):
+        return {"kind": "continuous", "map": env.navmap.to_toml(), "action": env.action,
+                "speed": float(env.params.speed), "noise": float(env.params.noise),
+                "n_beams": int(env.params.beams.shape[0]), "max_range": env.max_range,
+                "max_steps": int(env.params.max_steps)}
+    raise TPOError(f"cannot describe environment {type(env).__name__} for saving")
+
+
+def make_env(spec: dict[str, Any], *, evaluation: bool = False) -> GridNav | ContinuousNav:
+    """The environment of :func:`env_spec`; ``evaluation`` drops random starts."""
+    spec = dict(spec)
+    kind, navmap = spec.pop("kind"), parse_map(spec.pop("map"))
+    if kind == "grid":
+        if evaluation:
+            spec["random_start"] = False
+        return GridNav(navmap, **spec)
+    if kind == "continuous":
+        return ContinuousNav(navmap, **spec)
+    raise TPOError(f"unknown environment kind '{kind}'")
+
+
+class TPO:
+    """Topological policy optimization on a JAX navigation environment.
+
+    Args:
+        env: a :class:`GridNav` / :class:`ContinuousNav`, or a bundled map name or
+            TOML path (then a grid with random starts for training).
+        graph: an :class:`ObjectiveGraph` or a spec string such as ``"M>A>G"``
+            (a single name, e.g. ``"goal"``, is plain PPO).
+        slack: one slack or one per edge (ignored when ``graph`` is a graph).
+        config: hyperparameters.
+        seed: PRNG seed of the parameters and the run.
+    """
+
+    def __init__(self, env: GridNav | ContinuousNav | str, graph: ObjectiveGraph | str,
+                 slack: float | list[float] = 0.0, config: TPOConfig | None = None,
+                 seed: int = 0) -> None:
+        if isinstance(env, str | Path):
+            env = GridNav(load_map(env), random_start=True)
+        self.env = env
+        self.eval_env = make_env(env_spec(env), evaluation=True)
+        if isinstance(graph, str):
+            graph = ObjectiveGraph.parse(graph, slack, objectives=env.objectives)
+        self.graph = graph.bind(env.objectives)
+        self.config = config or TPOConfig()
+        self.seed = seed
+        self.state: TrainState | None = None
+        self.trainer: Trainer | None = None
+        self.num_timesteps = 0
+
+    # ----------------------------------------------------------------- train
+    def learn(self, total_timesteps: int, callback: Callback | None = None,
+              chunk_updates: int = 16) -> TPO:
+        """Train all phases from the current parameters for ``total_timesteps``.
+
+        ``callback(metrics, updates_done)`` is called after every chunk of
+        ``chunk_updates`` updates with that chunk's metrics.
+        """
+        trainer = Trainer(self.env, self.graph, self.config, total_timesteps)
+        key = jax.random.key(self.seed)
+        params = None if self.state is None else self.state.params
+        state = trainer.init(key, params)
+        if self.state is not None:
+            state = state.replace(value_norm=self.state.value_norm)
+        run = jax.jit(trainer.run, static_argnums=2)
+        slack = trainer.slack_array()
+        done = 0
+        while done < trainer.num_updates:
+            n = min(chunk_updates, trainer.num_updates - done)
+            state, metrics = run(state, slack, n)
+            done += n
+            if callback is not None:
+                callback(jax.tree.map(np.asarray, metrics), done)
+        self.trainer, self.state = trainer, state
+        self.num_timesteps += trainer.num_updates * self.config.batch_size
+        return self
+
+    def _need_state(self) -> TrainState:
+        if self.state is None:
+            raise TPOError("the model has no parameters yet: call learn() or TPO.load()")
+        return self.state
+
+    def _need_trainer(self) -> Trainer:
+        if self.trainer is None:
+            self.trainer = Trainer(self.env, self.graph, self.config,
+                                   self.config.batch_size * len(self.graph.objectives))
+        return self.trainer
+
+    # ---------------------------------------------------------------- policy
+    def predict(self, obs: np.ndarray, deterministic: bool = True,
+                key: jax.Array | None = None) -> np.ndarray:
+        """Actions for a single observation ``[D]`` or a batch ``[N, D]``."""
+        state, trainer = self._need_state(), self._need_trainer()
+        obs = jnp.asarray(obs, jnp.float32)
+        if obs.shape[-1:] != tuple(self.env.obs_shape):
+            raise TPOError(f"observation has shape {tuple(obs.shape)}, expected "
+                           f"[..., {self.env.obs_shape[0]}]")
+        out, log_std = trainer.actor.apply({"params": state.params["actor"]}, obs)
+        if deterministic:
+            return np.asarray(mode(out, trainer.continuous))
+        key = jax.random.key(0) if key is None else key
+        return np.asarray(sample(key, out, log_std, trainer.continuous))
+
+    def evaluate(self, episodes: int = 100, seed: int = 0) -> dict[str, Any]:
+        """Monte Carlo returns (undiscounted and discounted, greedy and stochastic,
+        mean and std by objective) and, for grid maps, the exact values of the
+        greedy and stochastic policy beside LAR's solution of the same problem."""
+        state, trainer = self._need_state(), self._need_trainer()
+        gamma, objectives = self.config.gamma, self.env.objectives
+        actor = state.params["actor"]
+        result: dict[str, Any] = {"mc": {}}
+        for i, greedy in enumerate((True, False)):
+            returns = monte_carlo(trainer, actor, self.eval_env, jax.random.key(seed + i),
+                                  episodes, greedy, gamma)
+            result["mc"]["greedy" if greedy else "stochastic"] = {
+                "undiscounted": summarize(returns["undiscounted"], objectives),
+                "discounted": summarize(returns["discounted"], objectives),
+                "length": float(returns["length"].mean())}
+        if isinstance(self.eval_env, GridNav):
+            result["exact"] = exact_values(trainer, actor, self.eval_env, gamma)
+            lar = solve_lar(self.eval_env.tabular(gamma).model, self.graph, relax=True)
+            result["lar"] = {"values": lar.start_values(),
+                             "policy_values": lar.start_policy_values(),
+                             "feasible": lar.feasible}
+        return result
+
+    # ----------------------------------------------------------- persistence
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        """Write the model to the directory ``path`` (atomically: a kill leaves the
+        old directory or none, never a half-written one)."""
+        state = self._need_state()
+        path = Path(path)
+        if path.exists() and not overwrite:
+            raise TPOError(f"{path} exists; pass overwrite=True to replace it")
+        meta = {"format": FORMAT, "config": self.config.to_dict(), "dag": self.graph.spec,
+                "slack": list(self.graph.slacks), "env": env_spec(self.env),
+                "seed": self.seed, "num_timesteps": self.num_timesteps}
+        blob = serialization.to_bytes({"params": state.params,
+                                       "value_norm": state.value_norm._asdict()})
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        (tmp / "model.json").write_text(json.dumps(meta, indent=2))
+        (tmp / "params.msgpack").write_bytes(blob)
+        if path.exists():
+            shutil.rmtree(path)
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> TPO:
+        """A model saved by :meth:`save`."""
+        path = Path(path)
+        try:
+            meta = json.loads((path / "model.json").read_text())
+            blob = (path / "params.msgpack").read_bytes()
+        except (OSError, json.JSONDecodeError) as err:
+            raise TPOError(f"{path} is not a saved tpo model: {err}") from None
+        if meta.get("format") != FORMAT:
+            raise TPOError(f"{path}: unknown model format {meta.get('format')!r}")
+        env = make_env(meta["env"])
+        model = cls(env, ObjectiveGraph.parse(meta["dag"], meta["slack"],
+                                              objectives=env.objectives),
+                    config=TPOConfig.from_dict(meta["config"]), seed=meta["seed"])
+        trainer = model._need_trainer()
+        template = trainer.init(jax.random.key(0))
+        restored = serialization.from_bytes(
+            {"params": template.params, "value_norm": template.value_norm._asdict()}, blob)
+        model.state = template.replace(params=restored["params"],
+                                       value_norm=ValueNorm(**restored["value_norm"]))
+        model.num_timesteps = meta["num_timesteps"]
+        return model

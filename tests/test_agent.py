@@ -1,0 +1,73 @@
+"""The SB3-style API: learn, predict, evaluate, save and load."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tpo.algo import TPO, TPOConfig
+from tpo.errors import TPOError
+
+CONFIG = TPOConfig(num_envs=8, num_steps=32)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return TPO("small", "M>A>G", slack=[100, 0], config=CONFIG, seed=3).learn(3 * 8 * 32 * 4)
+
+
+def test_learn_reports_progress_per_chunk():
+    seen = []
+    TPO("small", "goal", config=CONFIG).learn(8 * 32 * 5, chunk_updates=2,
+                                              callback=lambda m, n: seen.append(
+                                                  (n, m["phase"].shape)))
+    assert seen == [(2, (2,)), (4, (2,)), (5, (1,))]
+
+
+def test_save_and_load_give_the_same_policy(model, tmp_path):
+    path = model.save(tmp_path / "run")
+    meta = json.loads((path / "model.json").read_text())
+    assert meta["dag"] == "monitor>avoid>goal" and meta["slack"] == [100.0, 0.0]
+    loaded = TPO.load(path)
+    obs = model.eval_env.tabular_observations()
+    assert np.array_equal(model.predict(obs), loaded.predict(obs))
+    assert loaded.num_timesteps == model.num_timesteps == 3 * 8 * 32 * 4
+    assert loaded.evaluate(episodes=4)["exact"] == model.evaluate(episodes=4)["exact"]
+
+
+def test_save_refuses_to_overwrite(model, tmp_path):
+    path = model.save(tmp_path / "run")
+    before = (path / "params.msgpack").read_bytes()
+    with pytest.raises(TPOError, match="exists; pass overwrite=True"):
+        model.save(path)
+    model.save(path, overwrite=True)
+    assert (path / "params.msgpack").read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no temporary left behind
+
+
+def test_evaluate_reports_mc_exact_and_lar(model):
+    result = model.evaluate(episodes=8)
+    assert set(result) == {"mc", "exact", "lar"}
+    for kind in ("greedy", "stochastic"):
+        assert set(result["mc"][kind]["undiscounted"]) == {"goal", "avoid", "monitor"}
+        assert set(result["exact"][kind]) == {"goal", "avoid", "monitor"}
+    assert result["lar"]["policy_values"]["goal"] == pytest.approx(-(1 - 0.99**14) / 0.01)
+    greedy = result["mc"]["greedy"]
+    length = greedy["length"]  # the same every episode: greedy policy, deterministic env
+    assert greedy["discounted"]["goal"]["std"] == pytest.approx(0.0, abs=1e-5)
+    assert greedy["undiscounted"]["goal"]["mean"] == -length  # goal pays -1 per step
+    assert greedy["discounted"]["goal"]["mean"] == pytest.approx(-(1 - 0.99**length) / 0.01,
+                                                                 rel=1e-5)
+
+
+def test_predict_checks_shapes_and_needs_parameters(model):
+    with pytest.raises(TPOError, match=r"expected \[\.\.\., 27\]"):
+        model.predict(np.zeros(3))
+    with pytest.raises(TPOError, match=r"call learn\(\) or TPO\.load\(\)"):
+        TPO("small", "goal").predict(np.zeros(27))
+    assert model.predict(np.zeros(27)).shape == ()
+
+
+def test_load_rejects_a_folder_that_is_not_a_model(tmp_path):
+    with pytest.raises(TPOError, match="is not a saved tpo model"):
+        TPO.load(tmp_path)
