@@ -116,3 +116,21 @@ def test_config_round_trips_through_toml_text():
     assert TPOConfig.from_toml(text) == config
     with pytest.raises(ConfigError, match="unknown config key"):
         TPOConfig.from_dict({"lr": 1.0})
+
+
+def test_softened_warm_start_keeps_greedy_actions_and_raises_entropy(small):
+    train_env, eval_env = small
+    trainer = Trainer(train_env, ObjectiveGraph.parse("goal"), TPOConfig(), 10**5)
+    actor = trainer.init_params(jax.random.key(0))["actor"]
+    actor = jax.tree.map(lambda x: x * 50, actor)  # a sharp policy
+    obs = jnp.asarray(eval_env.tabular_observations())
+    before = trainer.actor.apply({"params": actor}, obs)[0]
+    after = trainer.actor.apply({"params": trainer._soften(actor, jnp.float32(0.2))}, obs)[0]
+    assert np.allclose(after, before * 0.2, rtol=1e-5, atol=1e-4)  # logits / temperature 5
+    assert np.array_equal(np.argmax(after, 1), np.argmax(before, 1))
+
+    def ent(logits):
+        p = jax.nn.softmax(logits)
+        return float(-(p * jnp.log(p + 1e-12)).sum(1).mean())
+
+    assert ent(after) > ent(before)

@@ -37,8 +37,11 @@ class TPOConfig:
             see :mod:`tpo.algo.lagrangian`.
         phase_fractions: share of the timesteps of each phase in topological
             order (default: equal).
-        reset_actor: start every phase from the initial actor instead of carrying
-            the policy over (Algorithm 1 carries it; see docs/notes/tpo-learning.md).
+        carry_temperature: the policy carries over from phase to phase (Algorithm 1)
+            with its logits divided by this temperature at each phase start: the same
+            greedy actions, but enough entropy to explore what the new objective
+            wants (1 = carry unchanged; measured in docs/notes/tpo-learning.md).
+        reset_actor: start every phase from the initial actor instead.
         clip_value: PPO's clipped value loss (off: it stalls critics of large values).
         critic_refit: share of each phase's updates, at its end, that roll out the
             greedy policy and train only the critic, so the frozen critic values the
@@ -65,6 +68,7 @@ class TPOConfig:
     reset_actor: bool = False
     clip_value: bool = False
     critic_refit: float = 0.0
+    carry_temperature: float = 5.0
 
     def __post_init__(self) -> None:
         for name in ("num_envs", "num_steps", "update_epochs", "num_minibatches"):
@@ -92,6 +96,7 @@ class TPOConfig:
             raise ConfigError(f"activation must be 'tanh' or 'relu', got {self.activation!r}")
         if self.beta != "auto":
             _nonnegative("beta", self.beta)
+        _positive("carry_temperature", self.carry_temperature)
         if not isinstance(self.critic_refit, (int, float)) or not 0 <= self.critic_refit < 1:
             raise ConfigError(f"critic_refit must be in [0, 1), got {self.critic_refit!r}")
         if self.advantage not in ADVANTAGE_FORMS:

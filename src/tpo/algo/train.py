@@ -195,6 +195,10 @@ class Trainer:
         if cfg.reset_actor:
             state = state.replace(params={**state.params, "actor": _where_tree(
                 first, state.initial_actor, state.params["actor"])})
+        elif cfg.carry_temperature != 1.0:
+            soften = first & (phase > 0)
+            state = state.replace(params={**state.params, "actor": self._soften(
+                state.params["actor"], jnp.where(soften, 1.0 / cfg.carry_temperature, 1.0))})
         actor_opt = _where_tree(first, self._actor_tx.init(state.params["actor"]),
                                 state.actor_opt)
         critic_opt = _where_tree(first, self._critic_tx.init(state.params["critics"]),
@@ -221,6 +225,12 @@ class Trainer:
                    "violation_rate": violating, **episodes,
                    **jax.tree.map(jnp.mean, losses)}
         return state, metrics
+
+    def _soften(self, actor: dict, factor: jax.Array) -> dict:
+        """The actor with its output layer scaled by ``factor`` (logits / temperature)."""
+        mlp = actor["MLP_0"]
+        head = f"Dense_{len(self.config.hidden)}"
+        return {**actor, "MLP_0": {**mlp, head: jax.tree.map(lambda x: x * factor, mlp[head])}}
 
     def _rollout(self, state: TrainState, greedy: jax.Array
                  ) -> tuple[TrainState, Transition, dict]:
