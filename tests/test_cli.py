@@ -88,3 +88,44 @@ def test_maps_lists_the_bundled_maps(capsys):
     assert main(["maps"]) == 0
     out = capsys.readouterr().out
     assert "home" in out and "11x30" in out
+
+
+def test_train_writes_a_run_directory_and_eval_reads_it(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["train", "--map", "small", "--dag", "M>A>G", "--slack", "100,0", "--steps",
+            str(3 * 2048 * 2), "--out", str(out), "--episodes", "4", "--quiet"]
+    assert main(args) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["config.toml", "eval.json",
+                                                      "metrics.csv", "model"]
+    result = json.loads((out / "eval.json").read_text())
+    assert set(result) == {"mc", "exact", "lar"}
+    assert set(result["mc"]["greedy"]["undiscounted"]) == {"goal", "avoid", "monitor"}
+    assert result["lar"]["policy_values"]["avoid"] == 0.0
+    lines = (out / "metrics.csv").read_text().strip().splitlines()
+    assert lines[0].startswith("update,timesteps,phase,return_goal")
+    assert len(lines) == 1 + 6 and lines[-1].split(",")[2] == "2"  # 6 updates, last phase 2
+    capsys.readouterr()
+    assert main(["eval", str(out), "--episodes", "4"]) == 0
+    assert json.loads(capsys.readouterr().out)["exact"] == result["exact"]
+    # The resolved config trains the same problem again.
+    again = tmp_path / "again"
+    assert main(["train", "--config", str(out / "config.toml"), "--out", str(again),
+                 "--episodes", "4", "--quiet"]) == 0
+    assert json.loads((again / "eval.json").read_text())["exact"] == result["exact"]
+
+
+def test_train_refuses_to_replace_a_run_and_rejects_bad_config(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    assert main(["train", "--map", "small", "--steps", "20000", "--out", str(out)]) == 2
+    assert "exists; pass --force" in capsys.readouterr().err
+    assert (out / "keep.txt").read_text() == "mine"
+    bad = tmp_path / "bad.toml"
+    bad.write_text("learning_rate = -1\n")
+    assert main(["train", "--config", str(bad), "--out", str(tmp_path / "x")]) == 2
+    assert "learning_rate must be a finite number > 0" in capsys.readouterr().err
+    assert main(["train", "--config", str(tmp_path / "none.toml"), "--out", "y"]) == 2
+    assert "cannot read --config" in capsys.readouterr().err
+    assert main(["eval", str(tmp_path / "nothing")]) == 2
+    assert "is not a saved tpo model" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""The ``tpo`` command line: ``tpo maps``, ``tpo solve``.
+"""The ``tpo`` command line: ``tpo maps``, ``tpo solve``, ``tpo train``, ``tpo eval``.
 
 Every user mistake ends in one line ``tpo: error: ...`` on stderr and exit code 2.
 """
@@ -92,6 +92,97 @@ def print_solution(name: str, sol: LARSolution, summary: dict) -> None:
     print(f"feasible: {feasible}; greedy path: {summary['path_length']} steps, {end}")
 
 
+# -------------------------------------------------------------------- train
+RUN_KEYS = {"map", "dag", "slack", "seed", "steps", "slip", "observation"}
+
+
+def toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    return repr(value)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    import tomllib
+
+    from tpo.algo import TPO, TPOConfig
+    from tpo.envs.grid import GridNav
+
+    settings: dict = {}
+    if args.config:
+        try:
+            settings = tomllib.loads(Path(args.config).read_text())
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise UsageError(f"cannot read --config {args.config}: {err}") from None
+    run_settings = {k: settings.pop(k) for k in list(settings) if k in RUN_KEYS}
+    for key in RUN_KEYS:
+        given = getattr(args, key)
+        if given is not None:
+            run_settings[key] = given
+    run = {"map": "home", "dag": "M>A>G", "slack": "0", "seed": 0, "steps": 1_000_000,
+           "slip": 0.0, "observation": "factored", **run_settings}
+    slack = run["slack"]
+    slack = parse_slack(slack) if isinstance(slack, str) else slack
+    config = TPOConfig.from_dict(settings)
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        raise UsageError(f"run directory {out} exists; pass --force to replace it")
+    env = GridNav(load_map(run["map"]), slip=run["slip"], observation=run["observation"],
+                  random_start=True)
+    model = TPO(env, run["dag"], slack=slack, config=config, seed=int(run["seed"]))
+    run["slack"] = list(model.graph.slacks)
+    out.mkdir(parents=True, exist_ok=True)
+    resolved = {**run, **config.to_dict()}
+    (out / "config.toml").write_text("".join(f"{k} = {toml_value(v)}\n"
+                                             for k, v in resolved.items()))
+    rows: list[str] = []
+    names = env.objectives
+    header = ["update", "timesteps", "phase", *[f"return_{n}" for n in names],
+              "episode_length", "penalty", "violation_rate", "policy_loss", "value_loss",
+              "entropy"]
+    from tqdm import tqdm
+
+    bar = tqdm(total=int(run["steps"]), unit="step", unit_scale=True, disable=args.quiet)
+    done_steps = [0]
+
+    def progress(metrics: dict, updates: int) -> None:
+        for i in range(len(metrics["phase"])):
+            u = updates - len(metrics["phase"]) + i + 1
+            ret = metrics["episode_return"][i]
+            rows.append(",".join(str(x) for x in [
+                u, u * config.batch_size, int(metrics["phase"][i]), *[f"{r:.4f}" for r in ret],
+                f"{metrics['episode_length'][i]:.2f}", f"{metrics['penalty'][i]:.5f}",
+                f"{metrics['violation_rate'][i]:.4f}", f"{metrics['policy_loss'][i]:.5f}",
+                f"{metrics['value_loss'][i]:.5f}", f"{metrics['entropy'][i]:.4f}"]))
+        steps = updates * config.batch_size
+        bar.update(steps - done_steps[0])
+        done_steps[0] = steps
+        phase = int(metrics["phase"][-1])
+        bar.set_postfix(phase=model.graph.order[phase],
+                        ret="/".join(f"{r:.1f}" for r in metrics["episode_return"][-1]))
+
+    model.learn(int(run["steps"]), callback=progress)
+    bar.close()
+    (out / "metrics.csv").write_text(",".join(header) + "\n" + "\n".join(rows) + "\n")
+    model.save(out / "model", overwrite=True)
+    result = model.evaluate(episodes=args.episodes)
+    (out / "eval.json").write_text(json.dumps(result, indent=2))
+    print(json.dumps({"exact": result.get("exact"), "lar": result.get("lar")}, indent=2))
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from tpo.algo import TPO
+
+    model = TPO.load(Path(args.run_dir) / "model")
+    print(json.dumps(model.evaluate(episodes=args.episodes), indent=2))
+    return 0
+
+
 # ------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -99,7 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("maps", help="list the bundled maps")
-    p.set_defaults(run=cmd_maps)
+    p.set_defaults(handler=cmd_maps)
 
     p = sub.add_parser("solve", help="exact LAR solution of a map for a DAG and slack")
     p.add_argument("--map", default="home", help="bundled map name or TOML file (default home)")
@@ -115,7 +206,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", metavar="FILE", help="draw the greedy path to FILE (.png/.pdf)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --plot file")
-    p.set_defaults(run=cmd_solve)
+    p.set_defaults(handler=cmd_solve)
+
+    p = sub.add_parser("train", help="train TPO on a map and write a run directory")
+    p.add_argument("--map", help="bundled map name or TOML file (default home)")
+    p.add_argument("--dag", help='objective DAG (default "M>A>G")')
+    p.add_argument("--slack", help="one slack, or one per edge: 0,100")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--steps", type=int, help="environment steps in all (default 1e6)")
+    p.add_argument("--slip", type=float)
+    p.add_argument("--observation", choices=("factored", "onehot", "coords"))
+    p.add_argument("--config", metavar="FILE.toml",
+                   help="the same fields, plus any TPOConfig field, from TOML")
+    p.add_argument("--out", required=True, help="run directory to create")
+    p.add_argument("--force", action="store_true", help="replace an existing run directory")
+    p.add_argument("--episodes", type=int, default=100, help="Monte Carlo episodes")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(handler=cmd_train)
+
+    p = sub.add_parser("eval", help="re-evaluate a saved run directory")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
+    p.add_argument("--episodes", type=int, default=100)
+    p.set_defaults(handler=cmd_eval)
     return parser
 
 
@@ -123,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return args.run(args)
+        return args.handler(args)
     except TPOError as err:
         print(f"tpo: error: {err}", file=sys.stderr)
         return EXIT_USAGE
