@@ -13,18 +13,13 @@ from tpo.algo.networks import mode, sample
 from tpo.tabular import evaluate_policy, softmax
 
 
-def policy_output(trainer: Any, actor_params: dict, obs: jax.Array
-                  ) -> tuple[jax.Array, jax.Array]:
-    """Logits (or Gaussian mean) and log-std of the actor at ``obs``."""
-    return trainer.actor.apply({"params": actor_params}, obs)
-
-
 def exact_values(trainer: Any, actor_params: dict, env: Any, gamma: float
                  ) -> dict[str, dict[str, float]]:
     """Exact discounted values at the start state of the greedy and the stochastic
     policy, by objective: ``{"greedy": {...}, "stochastic": {...}}``."""
     grid = env.tabular(gamma)
-    logits, _ = policy_output(trainer, actor_params, jnp.asarray(env.tabular_observations()))
+    logits, _ = trainer.actor.apply({"params": actor_params},
+                                    jnp.asarray(env.tabular_observations()))
     logits = np.asarray(logits, np.float64)
     start = grid.model.start
     out = {}

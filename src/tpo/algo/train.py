@@ -184,8 +184,7 @@ class Trainer:
         adv_all = ancestral_advantages(batch.reward, batch.value, batch.next_value,
                                        batch.terminated, cfg.gamma)
         c = violations(adv_all, jnp.asarray(prob.parents), slack)
-        penalty = c @ jnp.asarray(prob.active)[phase] if prob.parents.size else jnp.zeros(
-            batch.done.shape)
+        penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
         beta = jnp.asarray(prob.beta)[phase]
         advantages, targets = lagrangian_advantages(
             cfg.advantage, batch.reward @ pick, batch.value @ pick, batch.next_value @ pick,

@@ -147,7 +147,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     bar = tqdm(total=int(run["steps"]), unit="step", unit_scale=True, disable=args.quiet)
-    done_steps = [0]
 
     def progress(metrics: dict, updates: int) -> None:
         for i in range(len(metrics["phase"])):
@@ -158,9 +157,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 f"{metrics['episode_length'][i]:.2f}", f"{metrics['penalty'][i]:.5f}",
                 f"{metrics['violation_rate'][i]:.4f}", f"{metrics['policy_loss'][i]:.5f}",
                 f"{metrics['value_loss'][i]:.5f}", f"{metrics['entropy'][i]:.4f}"]))
-        steps = updates * config.batch_size
-        bar.update(steps - done_steps[0])
-        done_steps[0] = steps
+        bar.update(updates * config.batch_size - bar.n)
         phase = int(metrics["phase"][-1])
         bar.set_postfix(phase=model.graph.order[phase],
                         ret="/".join(f"{r:.1f}" for r in metrics["episode_return"][-1]))
