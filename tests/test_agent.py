@@ -2,6 +2,7 @@
 
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -37,12 +38,26 @@ def test_save_and_load_give_the_same_policy(model, tmp_path):
 
 def test_save_refuses_to_overwrite(model, tmp_path):
     path = model.save(tmp_path / "run")
-    before = (path / "params.msgpack").read_bytes()
+    before = (path / "state.msgpack").read_bytes()
     with pytest.raises(TPOError, match="exists; pass overwrite=True"):
         model.save(path)
     model.save(path, overwrite=True)
-    assert (path / "params.msgpack").read_bytes() == before
+    assert (path / "state.msgpack").read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no temporary left behind
+
+
+def test_a_model_saved_mid_training_resumes_to_the_same_state(tmp_path):
+    total = 8 * 32 * 6
+    whole = TPO("small", "M>A>G", slack=[100, 0], config=CONFIG, seed=1).learn(
+        total, chunk_updates=2)
+    part = TPO("small", "M>A>G", slack=[100, 0], config=CONFIG, seed=1)
+    part.learn(total, chunk_updates=2, callback=lambda m, n: n < 3)  # stops after 4
+    assert int(part.state.update) == 4 and not part.finished
+    resumed = TPO.load(part.save(tmp_path / "ckpt")).resume(chunk_updates=2)
+    assert resumed.finished and resumed.num_timesteps == whole.num_timesteps == total
+    same = jax.tree.map(lambda a, b: bool(np.array_equal(a, b)),
+                        jax.tree.leaves(whole.state.params), jax.tree.leaves(resumed.state.params))
+    assert all(same)
 
 
 def test_evaluate_reports_mc_exact_and_lar(model):

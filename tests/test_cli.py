@@ -1,6 +1,7 @@
 """The ``tpo`` command line as a user runs it."""
 
 import json
+import shutil
 import subprocess
 import sys
 
@@ -95,15 +96,17 @@ def test_train_writes_a_run_directory_and_eval_reads_it(tmp_path, capsys):
     args = ["train", "--map", "small", "--dag", "M>A>G", "--slack", "100,0", "--steps",
             str(3 * 2048 * 2), "--out", str(out), "--episodes", "4", "--quiet"]
     assert main(args) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["config.toml", "eval.json",
-                                                      "metrics.csv", "model"]
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoints", "config.toml", "eval.json",
+                                                      "metrics.csv", "model", "tb"]
+    assert [p.name for p in (out / "checkpoints").iterdir()] == ["update-000006"]
+    assert any(p.name.startswith("events.out.tfevents") for p in (out / "tb").iterdir())
     result = json.loads((out / "eval.json").read_text())
     assert set(result) == {"mc", "exact", "lar"}
     assert set(result["mc"]["greedy"]["undiscounted"]) == {"goal", "avoid", "monitor"}
     assert result["lar"]["policy_values"]["avoid"] == 0.0
     lines = (out / "metrics.csv").read_text().strip().splitlines()
     assert lines[0].startswith("update,timesteps,phase,return_goal")
-    assert len(lines) == 1 + 6 and lines[-1].split(",")[2] == "2"  # 6 updates, last phase 2
+    assert len(lines) == 1 + 6 and lines[-1].split(",")[2] == "goal"  # last phase
     capsys.readouterr()
     assert main(["eval", str(out), "--episodes", "4"]) == 0
     assert json.loads(capsys.readouterr().out)["exact"] == result["exact"]
@@ -114,12 +117,31 @@ def test_train_writes_a_run_directory_and_eval_reads_it(tmp_path, capsys):
     assert json.loads((again / "eval.json").read_text())["exact"] == result["exact"]
 
 
+def test_train_resume_finishes_a_run_from_its_last_checkpoint(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["train", "--map", "small", "--dag", "A>G", "--slack", "0", "--steps",
+            str(2 * 2048 * 12), "--out", str(out), "--episodes", "4", "--quiet"]
+    assert main(args) == 0
+    done = json.loads((out / "eval.json").read_text())
+    metrics = (out / "metrics.csv").read_text()
+    # Pretend the run was killed after update 16's checkpoint, mid-way through a chunk.
+    for p in [out / "model", *sorted((out / "checkpoints").iterdir())[1:]]:
+        shutil.rmtree(p)
+    (out / "eval.json").unlink()
+    (out / "metrics.csv").write_text(metrics[: len(metrics) * 3 // 4])  # a cut-off line
+    assert main(["train", "--resume", str(out), "--quiet", "--episodes", "4"]) == 0
+    assert json.loads((out / "eval.json").read_text()) == done
+    assert (out / "metrics.csv").read_text() == metrics
+    assert main(["train", "--resume", str(out), "--map", "home"]) == 2
+    assert "drop --out, --config and the run options" in capsys.readouterr().err
+
+
 def test_train_refuses_to_replace_a_run_and_rejects_bad_config(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
     assert main(["train", "--map", "small", "--steps", "20000", "--out", str(out)]) == 2
-    assert "exists; pass --force" in capsys.readouterr().err
+    assert "exists; pass --force to replace it or --resume" in capsys.readouterr().err
     assert (out / "keep.txt").read_text() == "mine"
     bad = tmp_path / "bad.toml"
     bad.write_text("learning_rate = -1\n")

@@ -3,8 +3,11 @@
 
 Saved models are a directory holding ``model.json`` (format version, config,
 DAG spec and slack, the environment's constructor arguments with the map's
-TOML text) and ``params.msgpack`` (Flax ``serialization.to_bytes`` of the actor
-and critic parameters and the critics' value normalisation).
+TOML text, seed, the training program's length and progress) and
+``state.msgpack``: Flax ``serialization.to_bytes`` of the whole
+:class:`~tpo.algo.train.TrainState` (parameters, optimiser states, value
+normalisation, environment states, PRNG key as raw key data), so a saved model
+both acts and resumes training exactly where it stopped (:meth:`TPO.resume`).
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from flax import serialization
 
 from tpo.algo.config import TPOConfig
 from tpo.algo.evaluate import exact_values, monte_carlo, summarize
-from tpo.algo.networks import ValueNorm, mode, sample
+from tpo.algo.networks import mode, sample
 from tpo.algo.train import Trainer, TrainState
 from tpo.envs import load_map, parse_map
 from tpo.envs.continuous import ContinuousNav
@@ -33,8 +36,8 @@ from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar
 
-FORMAT = 1
-Callback = Callable[[dict[str, np.ndarray], int], None]
+FORMAT = 2
+Callback = Callable[[dict[str, np.ndarray], int], bool | None]
 
 
 def env_spec(env: GridNav | ContinuousNav) -> dict[str, Any]:
@@ -91,34 +94,55 @@ class TPO:
         self.seed = seed
         self.state: TrainState | None = None
         self.trainer: Trainer | None = None
+        self._run: Callable | None = None
         self.num_timesteps = 0
 
     # ----------------------------------------------------------------- train
     def learn(self, total_timesteps: int, callback: Callback | None = None,
               chunk_updates: int = 16) -> TPO:
-        """Train all phases from the current parameters for ``total_timesteps``.
+        """Train all phases, starting from the current parameters, for
+        ``total_timesteps`` environment steps.
 
         ``callback(metrics, updates_done)`` is called after every chunk of
-        ``chunk_updates`` updates with that chunk's metrics.
+        ``chunk_updates`` updates with that chunk's metrics (arrays over its
+        updates); ``self.state`` is then the state after the chunk, so the
+        callback may :meth:`save` a checkpoint. Returning ``False`` stops training
+        (:meth:`resume` continues it).
         """
         trainer = Trainer(self.env, self.graph, self.config, total_timesteps)
-        key = jax.random.key(self.seed)
         params = None if self.state is None else self.state.params
-        state = trainer.init(key, params)
+        state = trainer.init(jax.random.key(self.seed), params)
         if self.state is not None:
             state = state.replace(value_norm=self.state.value_norm)
-        run = jax.jit(trainer.run, static_argnums=2)
+        self.trainer, self.state, self._run = trainer, state, None
+        return self.resume(callback, chunk_updates)
+
+    def resume(self, callback: Callback | None = None, chunk_updates: int = 16) -> TPO:
+        """Continue the current training program (of :meth:`learn`, or of a model
+        saved mid-training) to its end. Chunks stay aligned to multiples of
+        ``chunk_updates``, so a resumed run computes exactly what an uninterrupted
+        one does."""
+        state, trainer = self._need_state(), self._need_trainer()
+        if self._run is None:
+            self._run = jax.jit(trainer.run, static_argnums=2)
         slack = trainer.slack_array()
-        done = 0
+        done = int(state.update)
         while done < trainer.num_updates:
-            n = min(chunk_updates, trainer.num_updates - done)
-            state, metrics = run(state, slack, n)
+            n = min(chunk_updates - done % chunk_updates, trainer.num_updates - done)
+            state, metrics = self._run(state, slack, n)
             done += n
-            if callback is not None:
-                callback(jax.tree.map(np.asarray, metrics), done)
-        self.trainer, self.state = trainer, state
-        self.num_timesteps += trainer.num_updates * self.config.batch_size
+            self.state = state
+            self.num_timesteps += n * self.config.batch_size
+            if callback is not None and callback(jax.tree.map(np.asarray, metrics),
+                                                 done) is False:
+                break
         return self
+
+    @property
+    def finished(self) -> bool:
+        """Whether the current training program has run all its updates."""
+        return self.state is not None and self.trainer is not None and \
+            int(self.state.update) >= self.trainer.num_updates
 
     def _need_state(self) -> TrainState:
         if self.state is None:
@@ -127,8 +151,7 @@ class TPO:
 
     def _need_trainer(self) -> Trainer:
         if self.trainer is None:
-            self.trainer = Trainer(self.env, self.graph, self.config,
-                                   self.config.batch_size * len(self.graph.objectives))
+            raise TPOError("the model has no training program yet: call learn() or TPO.load()")
         return self.trainer
 
     # ---------------------------------------------------------------- policy
@@ -173,44 +196,57 @@ class TPO:
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write the model to the directory ``path`` (atomically: a kill leaves the
         old directory or none, never a half-written one)."""
-        state = self._need_state()
+        state, trainer = self._need_state(), self._need_trainer()
         path = Path(path)
         if path.exists() and not overwrite:
             raise TPOError(f"{path} exists; pass overwrite=True to replace it")
         meta = {"format": FORMAT, "config": self.config.to_dict(), "dag": self.graph.spec,
                 "slack": list(self.graph.slacks), "env": env_spec(self.env),
-                "seed": self.seed, "num_timesteps": self.num_timesteps}
-        blob = serialization.to_bytes({"params": state.params,
-                                       "value_norm": state.value_norm._asdict()})
+                "seed": self.seed, "num_timesteps": self.num_timesteps,
+                "total_timesteps": trainer.total_timesteps, "updates_done": int(state.update),
+                "num_updates": trainer.num_updates}
+        blob = serialization.to_bytes(state.replace(key=jax.random.key_data(state.key)))
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
         (tmp / "model.json").write_text(json.dumps(meta, indent=2))
-        (tmp / "params.msgpack").write_bytes(blob)
+        (tmp / "state.msgpack").write_bytes(blob)
+        for f in tmp.iterdir():
+            with open(f, "rb") as fh:
+                os.fsync(fh.fileno())
         if path.exists():
-            shutil.rmtree(path)
-        os.replace(tmp, path)
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            os.replace(path, old / path.name)
+            os.replace(tmp, path)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, path)
         return path
 
     @classmethod
     def load(cls, path: str | Path) -> TPO:
-        """A model saved by :meth:`save`."""
+        """A model saved by :meth:`save`: it acts, and :meth:`resume` finishes its
+        training program if it was saved mid-way."""
         path = Path(path)
         try:
             meta = json.loads((path / "model.json").read_text())
-            blob = (path / "params.msgpack").read_bytes()
+            blob = (path / "state.msgpack").read_bytes()
         except (OSError, json.JSONDecodeError) as err:
             raise TPOError(f"{path} is not a saved tpo model: {err}") from None
         if meta.get("format") != FORMAT:
-            raise TPOError(f"{path}: unknown model format {meta.get('format')!r}")
+            raise TPOError(f"{path}: unknown model format {meta.get('format')!r} "
+                           f"(this version reads {FORMAT})")
         env = make_env(meta["env"])
         model = cls(env, ObjectiveGraph.parse(meta["dag"], meta["slack"],
                                               objectives=env.objectives),
                     config=TPOConfig.from_dict(meta["config"]), seed=meta["seed"])
-        trainer = model._need_trainer()
-        template = trainer.init(jax.random.key(0))
-        restored = serialization.from_bytes(
-            {"params": template.params, "value_norm": template.value_norm._asdict()}, blob)
-        model.state = template.replace(params=restored["params"],
-                                       value_norm=ValueNorm(**restored["value_norm"]))
+        model.trainer = Trainer(env, model.graph, model.config, meta["total_timesteps"])
+        template = model.trainer.init(jax.random.key(0))
+        try:
+            state = serialization.from_bytes(
+                template.replace(key=jax.random.key_data(template.key)), blob)
+        except (ValueError, KeyError, TypeError) as err:
+            raise TPOError(f"{path}/state.msgpack is damaged or does not match "
+                           f"model.json: {err}") from None
+        model.state = state.replace(key=jax.random.wrap_key_data(state.key))
         model.num_timesteps = meta["num_timesteps"]
         return model

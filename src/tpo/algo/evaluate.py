@@ -3,6 +3,7 @@ has a tabular model (the ground truth of :mod:`tpo.tabular`)."""
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import jax
@@ -29,11 +30,11 @@ def exact_values(trainer: Any, actor_params: dict, env: Any, gamma: float
     return out
 
 
-def monte_carlo(trainer: Any, actor_params: dict, env: Any, key: jax.Array, episodes: int,
-                greedy: bool, gamma: float) -> dict[str, np.ndarray]:
-    """Returns of ``episodes`` episodes from the env's reset until it terminates or
-    truncates: ``{"undiscounted": [N, k], "discounted": [N, k], "length": [N]}``."""
-    steps = int(env.params.max_steps)
+def episode_returns(trainer: Any, env: Any, actor_params: dict, keys: jax.Array,
+                    greedy: bool, gamma: float) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Undiscounted ``[N, k]`` and discounted ``[N, k]`` returns and lengths ``[N]`` of
+    one episode per key, from the env's reset until it terminates or truncates
+    (traceable: jit it, or vmap it over parameters)."""
     continuous = trainer.continuous
 
     def episode(key):
@@ -57,10 +58,18 @@ def monte_carlo(trainer: Any, actor_params: dict, env: Any, key: jax.Array, epis
         init = (obs, state, jnp.float32(1), jnp.zeros(k), jnp.zeros(k), jnp.float32(1),
                 jnp.float32(0))
         (_, _, _, ret, disc_ret, _, length), _ = jax.lax.scan(
-            body, init, jax.random.split(k_run, steps))
+            body, init, jax.random.split(k_run, int(env.params.max_steps)))
         return ret, disc_ret, length
 
-    ret, disc, length = jax.jit(jax.vmap(episode))(jax.random.split(key, episodes))
+    return jax.vmap(episode)(keys)
+
+
+def monte_carlo(trainer: Any, actor_params: dict, env: Any, key: jax.Array, episodes: int,
+                greedy: bool, gamma: float) -> dict[str, np.ndarray]:
+    """:func:`episode_returns` of ``episodes`` episodes as NumPy:
+    ``{"undiscounted": [N, k], "discounted": [N, k], "length": [N]}``."""
+    run = jax.jit(partial(episode_returns, trainer, env, greedy=greedy, gamma=gamma))
+    ret, disc, length = run(actor_params, jax.random.split(key, episodes))
     return {"undiscounted": np.asarray(ret), "discounted": np.asarray(disc),
             "length": np.asarray(length)}
 

@@ -114,7 +114,7 @@ class Trainer:
 
     def __init__(self, env: Any, graph: ObjectiveGraph, config: TPOConfig,
                  total_timesteps: int) -> None:
-        self.env, self.config = env, config
+        self.env, self.config, self.total_timesteps = env, config, total_timesteps
         self.problem = Problem.build(graph, env.objectives, config, env.reward_low,
                                      env.reward_high)
         self.continuous = getattr(env, "num_actions", None) is None

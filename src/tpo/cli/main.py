@@ -93,82 +93,53 @@ def print_solution(name: str, sol: LARSolution, summary: dict) -> None:
 
 
 # -------------------------------------------------------------------- train
-RUN_KEYS = {"map", "dag", "slack", "seed", "steps", "slip", "observation"}
-
-
-def toml_value(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    return repr(value)
+RUN_ARGS = ("map", "dag", "slack", "seed", "steps", "slip", "observation")
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     import tomllib
 
-    from tpo.algo import TPO, TPOConfig
-    from tpo.envs.grid import GridNav
-
-    settings: dict = {}
-    if args.config:
-        try:
-            settings = tomllib.loads(Path(args.config).read_text())
-        except (OSError, tomllib.TOMLDecodeError) as err:
-            raise UsageError(f"cannot read --config {args.config}: {err}") from None
-    run_settings = {k: settings.pop(k) for k in list(settings) if k in RUN_KEYS}
-    for key in RUN_KEYS:
-        given = getattr(args, key)
-        if given is not None:
-            run_settings[key] = given
-    run = {"map": "home", "dag": "M>A>G", "slack": "0", "seed": 0, "steps": 1_000_000,
-           "slip": 0.0, "observation": "factored", **run_settings}
-    slack = run["slack"]
-    slack = parse_slack(slack) if isinstance(slack, str) else slack
-    config = TPOConfig.from_dict(settings)
-    out = Path(args.out)
-    if out.exists() and not args.force:
-        raise UsageError(f"run directory {out} exists; pass --force to replace it")
-    env = GridNav(load_map(run["map"]), slip=run["slip"], observation=run["observation"],
-                  random_start=True)
-    model = TPO(env, run["dag"], slack=slack, config=config, seed=int(run["seed"]))
-    run["slack"] = list(model.graph.slacks)
-    out.mkdir(parents=True, exist_ok=True)
-    resolved = {**run, **config.to_dict()}
-    (out / "config.toml").write_text("".join(f"{k} = {toml_value(v)}\n"
-                                             for k, v in resolved.items()))
-    rows: list[str] = []
-    names = env.objectives
-    header = ["update", "timesteps", "phase", *[f"return_{n}" for n in names],
-              "episode_length", "penalty", "violation_rate", "policy_loss", "value_loss",
-              "entropy"]
     from tqdm import tqdm
 
-    bar = tqdm(total=int(run["steps"]), unit="step", unit_scale=True, disable=args.quiet)
+    from tpo.experiments import RunSpec, create_run, train_run
 
-    def progress(metrics: dict, updates: int) -> None:
-        for i in range(len(metrics["phase"])):
-            u = updates - len(metrics["phase"]) + i + 1
-            ret = metrics["episode_return"][i]
-            rows.append(",".join(str(x) for x in [
-                u, u * config.batch_size, int(metrics["phase"][i]), *[f"{r:.4f}" for r in ret],
-                f"{metrics['episode_length'][i]:.2f}", f"{metrics['penalty'][i]:.5f}",
-                f"{metrics['violation_rate'][i]:.4f}", f"{metrics['policy_loss'][i]:.5f}",
-                f"{metrics['value_loss'][i]:.5f}", f"{metrics['entropy'][i]:.4f}"]))
-        bar.update(updates * config.batch_size - bar.n)
-        phase = int(metrics["phase"][-1])
-        bar.set_postfix(phase=model.graph.order[phase],
+    given = {k: getattr(args, k) for k in RUN_ARGS if getattr(args, k) is not None}
+    if args.resume:
+        if given or args.config or args.out:
+            raise UsageError("--resume continues a run with its own config.toml; "
+                             "drop --out, --config and the run options")
+        run_dir = Path(args.resume)
+        if not (run_dir / "config.toml").exists():
+            raise UsageError(f"{run_dir} is not a run directory (no config.toml)")
+        spec = RunSpec.from_toml(run_dir / "config.toml")
+    else:
+        if not args.out:
+            raise UsageError("give --out RUN_DIR (or --resume RUN_DIR)")
+        settings: dict = {}
+        if args.config:
+            try:
+                settings = tomllib.loads(Path(args.config).read_text())
+            except (OSError, tomllib.TOMLDecodeError) as err:
+                raise UsageError(f"cannot read --config {args.config}: {err}") from None
+        if "slack" in given:
+            given["slack"] = parse_slack(given["slack"])
+        spec = RunSpec.from_settings({**settings, **given})
+        spec.model()  # check map, DAG and slack before creating anything
+        run_dir = create_run(args.out, spec, force=args.force)
+
+    bar = tqdm(total=spec.steps, unit="step", unit_scale=True, disable=args.quiet)
+
+    def progress(model, metrics: dict, updates: int) -> None:
+        bar.update(updates * spec.config.batch_size - bar.n)
+        bar.set_postfix(phase=model.graph.order[int(metrics["phase"][-1])],
                         ret="/".join(f"{r:.1f}" for r in metrics["episode_return"][-1]))
 
-    model.learn(int(run["steps"]), callback=progress)
-    bar.close()
-    (out / "metrics.csv").write_text(",".join(header) + "\n" + "\n".join(rows) + "\n")
-    model.save(out / "model", overwrite=True)
-    result = model.evaluate(episodes=args.episodes)
-    (out / "eval.json").write_text(json.dumps(result, indent=2))
+    try:
+        result = train_run(run_dir, episodes=args.episodes, progress=progress)
+    finally:
+        bar.close()
     print(json.dumps({"exact": result.get("exact"), "lar": result.get("lar")}, indent=2))
+    print(f"run written to {run_dir}")
     return 0
 
 
@@ -215,8 +186,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--observation", choices=("factored", "onehot", "coords"))
     p.add_argument("--config", metavar="FILE.toml",
                    help="the same fields, plus any TPOConfig field, from TOML")
-    p.add_argument("--out", required=True, help="run directory to create")
+    p.add_argument("--out", help="run directory to create")
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
+    p.add_argument("--resume", metavar="RUN_DIR",
+                   help="continue a run from its last checkpoint (e.g. after a kill)")
     p.add_argument("--episodes", type=int, default=100, help="Monte Carlo episodes")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_train)

@@ -1,0 +1,118 @@
+"""Many slack values × seeds of one DAG as a single compiled run, judged against LAR.
+
+The trainer's ``run`` is vmapped over seeds and then over slack vectors, so
+``S`` slacks × ``N`` seeds train as one jitted program (chunked only to report
+progress). Each learned greedy leaf policy is then evaluated exactly on the
+grid's tabular model and by Monte Carlo, beside LAR's solution of the same DAG,
+slack and gamma.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from tpo.algo import TPOConfig, Trainer
+from tpo.algo.agent import env_spec, make_env
+from tpo.algo.evaluate import episode_returns
+from tpo.envs.grid import GridNav
+from tpo.graph import ObjectiveGraph
+from tpo.tabular import evaluate_policy, solve_lar
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """Values at the start state, by slack ``s``, seed ``n`` and objective ``k``.
+
+    Attributes:
+        graph: the DAG (with the first slack).
+        objectives: reward columns (the last axis of every value array).
+        slacks: ``[S, n_edges]`` local slack of every run.
+        seeds: the ``N`` seeds.
+        exact: ``[S, N, k]`` exact discounted values of the learned greedy policy.
+        mc: ``[S, N, k]`` mean discounted Monte Carlo return of the greedy policy.
+        lar: ``[S, k]`` exact values of LAR's greedy leaf policy.
+        feasible: ``[S]`` whether LAR found the problem feasible (else relaxed).
+        policies: ``[S, N, n_states]`` the learned greedy actions on the grid model.
+    """
+
+    graph: ObjectiveGraph
+    objectives: tuple[str, ...]
+    slacks: np.ndarray
+    seeds: tuple[int, ...]
+    exact: np.ndarray
+    mc: np.ndarray
+    lar: np.ndarray
+    feasible: np.ndarray
+    policies: np.ndarray
+
+    def matches(self, rel: float = 0.05, atol: float = 0.5) -> np.ndarray:
+        """``[S, N]``: every objective's exact value within ``max(atol, rel |LAR|)``
+        of LAR's."""
+        tol = np.maximum(atol, rel * np.abs(self.lar))[:, None, :]
+        return np.all(np.abs(self.exact - self.lar[:, None, :]) <= tol, axis=-1)
+
+
+Progress = Callable[[int, int], None]
+
+
+def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence[float]],
+              seeds: Sequence[int], config: TPOConfig, total_timesteps: int, *,
+              episodes: int = 8, chunk_updates: int = 32,
+              progress: Progress | None = None) -> SweepResult:
+    """Train ``dag`` at every slack vector × seed in one compiled run and evaluate.
+
+    ``env`` is the training env (e.g. with random starts); evaluation starts
+    from the map's start. ``progress(updates_done, num_updates)`` is called
+    after every chunk.
+    """
+    slack_arr = np.asarray(slacks, np.float32)
+    first = slack_arr[0].tolist() if slack_arr.ndim == 2 and len(slack_arr) else []
+    graph = (dag.with_slack(first) if isinstance(dag, ObjectiveGraph)
+             else ObjectiveGraph.parse(dag, first, objectives=env.objectives))
+    graphs = [graph.with_slack(s.tolist()) for s in slack_arr]  # checks every slack vector
+    trainer = Trainer(env, graph, config, total_timesteps)
+    per_seed = [trainer.init(jax.random.key(s)) for s in seeds]  # outside vmap: DESIGN §6
+    states = jax.tree.map(lambda *x: jnp.stack(x), *per_seed)
+    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(slack_arr), *x.shape)), states)
+    compiled: dict[int, Callable] = {}
+    done = 0
+    while done < trainer.num_updates:
+        n = min(chunk_updates, trainer.num_updates - done)
+        if n not in compiled:
+            over_seeds = jax.vmap(lambda st, sl, n=n: trainer.run(st, sl, n)[0],
+                                  in_axes=(0, None))
+            compiled[n] = jax.jit(jax.vmap(over_seeds))
+        states = compiled[n](states, jnp.asarray(slack_arr))
+        done += n
+        if progress is not None:
+            progress(done, trainer.num_updates)
+    return evaluate_sweep(trainer, states.params["actor"], env, graphs, slack_arr,
+                          tuple(seeds), episodes)
+
+
+def evaluate_sweep(trainer: Trainer, actors: dict, env: GridNav,
+                   graphs: Sequence[ObjectiveGraph], slacks: np.ndarray,
+                   seeds: tuple[int, ...], episodes: int) -> SweepResult:
+    """Exact and Monte Carlo values of ``actors`` (leading axes ``[S, N]``)."""
+    eval_env = make_env(env_spec(env), evaluation=True)
+    gamma = trainer.config.gamma
+    grid = eval_env.tabular(gamma)
+    obs = jnp.asarray(eval_env.tabular_observations())
+    logits = jax.vmap(jax.vmap(lambda p: trainer.actor.apply({"params": p}, obs)[0]))(actors)
+    policies = np.asarray(logits).argmax(axis=-1)
+    start = grid.model.start
+    exact = np.array([[evaluate_policy(grid.model, pi)[start] for pi in row]
+                      for row in policies])
+    keys = jax.random.split(jax.random.key(0), episodes)
+    mc_run = jax.jit(jax.vmap(jax.vmap(
+        lambda p: episode_returns(trainer, eval_env, p, keys, True, gamma)[1].mean(0))))
+    mc = np.asarray(mc_run(actors), np.float64)
+    solutions = [solve_lar(grid.model, g, relax=True) for g in graphs]
+    lar = np.array([[s.start_policy_values()[n] for n in env.objectives] for s in solutions])
+    return SweepResult(graphs[0], tuple(env.objectives), slacks, seeds, exact, mc, lar,
+                       np.array([s.feasible for s in solutions]), policies)
