@@ -134,3 +134,15 @@ def test_softened_warm_start_keeps_greedy_actions_and_raises_entropy(small):
         return float(-(p * jnp.log(p + 1e-12)).sum(1).mean())
 
     assert ent(after) > ent(before)
+
+
+def test_one_critic_head_equals_its_column_of_all_heads():
+    from tpo.algo.networks import Critics
+
+    critics = Critics((16, 16), 3)
+    obs = jax.random.normal(jax.random.key(1), (5, 7))
+    params = critics.init(jax.random.key(0), obs)["params"]
+    every = critics.apply({"params": params}, obs)
+    for column in range(3):
+        np.testing.assert_allclose(critics.head(params, jnp.int32(column), obs),
+                                   every[:, column], rtol=1e-6)

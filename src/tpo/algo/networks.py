@@ -69,6 +69,13 @@ class Critics(nn.Module):
                         in_axes=None, out_axes=-1, axis_size=self.k)
         return heads(self.hidden, 1, 1.0, self.activation)(obs)[..., 0, :]
 
+    def head(self, params: dict, column: jax.Array, obs: jax.Array) -> jax.Array:
+        """Head ``column``'s output ``[...]`` alone (one MLP instead of ``k``; the
+        gradient reaches only that head's slice of ``params``)."""
+        one = jax.tree.map(lambda x: x[column], params["VmapMLP_0"])
+        mlp = MLP(self.hidden, 1, 1.0, self.activation, parent=None)
+        return mlp.apply({"params": one}, obs)[..., 0]
+
 
 class ValueNorm(NamedTuple):
     """Running statistics of each objective's value targets, ``[k]`` each.

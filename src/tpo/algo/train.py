@@ -214,7 +214,7 @@ class Trainer:
                              advantages, targets))
         key, k_epochs = jax.random.split(state.key)
         (params, actor_opt, critic_opt), losses = jax.lax.scan(
-            partial(self._epoch, pick=pick, lr=lr, scale=scale, data=flat),
+            partial(self._epoch, column=column, lr=lr, scale=scale, data=flat),
             (state.params, actor_opt, critic_opt), jax.random.split(k_epochs, cfg.update_epochs))
 
         state = state.replace(params=params, actor_opt=actor_opt, critic_opt=critic_opt,
@@ -234,22 +234,18 @@ class Trainer:
     def _rollout(self, state: TrainState, greedy: jax.Array
                  ) -> tuple[TrainState, Transition, dict]:
         cfg, env = self.config, self.env
-        actor_p, critic_p = state.params["actor"], state.params["critics"]
-        norm = state.value_norm
+        actor_p = state.params["actor"]
 
         def step(carry, key):
             env_state, obs, ep_ret, ep_len, done_ret, done_len, done_n = carry
             k_act, k_env = jax.random.split(key)
             out, log_std = self.actor.apply({"params": actor_p}, obs)
-            value = norm.denormalize(self.critics.apply({"params": critic_p}, obs))
             action = jnp.where(greedy, mode(out, self.continuous),
                                sample(k_act, out, log_std, self.continuous))
             logp = log_prob(out, log_std, action, self.continuous)
             obs2, env_state, reward, term, trunc, info = jax.vmap(
                 env.step, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_env, cfg.num_envs), env_state, action, env.params)
-            next_value = norm.denormalize(self.critics.apply({"params": critic_p},
-                                                             info["final_obs"]))
             done = term | trunc
             ep_ret, ep_len = ep_ret + reward, ep_len + 1
             d = done.astype(jnp.float32)
@@ -257,16 +253,19 @@ class Trainer:
             done_len = done_len + (ep_len * d).sum()
             done_n = done_n + d.sum()
             ep_ret, ep_len = ep_ret * (1 - d[:, None]), ep_len * (1 - d)
-            tr = Transition(obs, action, logp, reward, value, next_value,
-                            term.astype(jnp.float32), d)
-            return (env_state, obs2, ep_ret, ep_len, done_ret, done_len, done_n), tr
+            out = (obs, action, logp, reward, info["final_obs"], term.astype(jnp.float32), d)
+            return (env_state, obs2, ep_ret, ep_len, done_ret, done_len, done_n), out
 
         key, k_roll = jax.random.split(state.key)
         k = len(self.problem.objectives)
         init = (state.env_state, state.obs, state.episode_return, state.episode_length,
                 jnp.zeros(k), jnp.zeros(()), jnp.zeros(()))
-        (env_state, obs, ep_ret, ep_len, done_ret, done_len, done_n), batch = jax.lax.scan(
+        (env_state, obs, ep_ret, ep_len, done_ret, done_len, done_n), steps = jax.lax.scan(
             step, init, jax.random.split(k_roll, cfg.num_steps))
+        # The critics see the whole rollout at once (one batched call, not one per step).
+        obs_t, action, logp, reward, final_obs, term, done = steps
+        values = self.values(state, jnp.stack([obs_t, final_obs]))
+        batch = Transition(obs_t, action, logp, reward, values[0], values[1], term, done)
         n = jnp.maximum(done_n, 1.0)
         episodes = {"episodes": done_n, "episode_return": done_ret / n,
                     "episode_length": done_len / n}
@@ -274,15 +273,15 @@ class Trainer:
                               episode_length=ep_len)
         return state, batch, episodes
 
-    def _epoch(self, carry, key, *, pick, lr, scale, data):
+    def _epoch(self, carry, key, *, column, lr, scale, data):
         cfg = self.config
         perm = jax.random.permutation(key, cfg.batch_size)
         shuffled = jax.tree.map(
             lambda x: x[perm].reshape(cfg.num_minibatches, -1, *x.shape[1:]), data)
-        return jax.lax.scan(partial(self._minibatch, pick=pick, lr=lr, scale=scale), carry,
-                            shuffled)
+        return jax.lax.scan(partial(self._minibatch, column=column, lr=lr,
+                                    scale=scale), carry, shuffled)
 
-    def _minibatch(self, carry, mb, *, pick, lr, scale):
+    def _minibatch(self, carry, mb, *, column, lr, scale):
         cfg = self.config
         params, actor_opt, critic_opt = carry
         obs, action, old_logp, old_value, advantages, targets = mb
@@ -293,7 +292,7 @@ class Trainer:
             ent = entropy(out, log_std, self.continuous).mean()
             pg = clipped_surrogate(logp - old_logp, normalize(advantages), cfg.clip_eps)
             mean, std = scale
-            out = self.critics.apply({"params": p["critics"]}, obs) @ pick
+            out = self.critics.head(p["critics"], column, obs)
             goal, old = (targets - mean) / std, (old_value - mean) / std
             vl = (clipped_value_loss(out, old, goal, cfg.clip_eps) if cfg.clip_value
                   else 0.5 * jnp.mean((out - goal) ** 2))

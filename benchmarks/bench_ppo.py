@@ -1,0 +1,280 @@
+"""End-to-end training throughput: TPO (3 objectives) vs plain PPO in the same code vs
+a CleanRL-style PyTorch PPO vs Stable-Baselines3 PPO, on the same grid map.
+
+    pip install -e ".[bench]"          # torch 2.13.0 (CPU) and stable-baselines3
+    python benchmarks/bench_ppo.py --envs 16 256 --repeats 3
+
+Every measurement runs in its own subprocess (so its peak RSS is its own) and
+reports env-steps/s of training: rollout + PPO update, 128 steps per env per
+update, 4 epochs of 4 minibatches, 64x64 tanh actor and critic(s), Adam. JAX runs
+are timed after compilation (reported apart); PyTorch and SB3 after one warm-up
+update. The PyTorch and SB3 learners step a NumPy vector version of the same map
+(the grid's exact model: one table lookup per step, observations from the same
+table as GridNav's factored observation), so the env is not what is compared.
+Prints medians over ``--repeats`` and the ratios the issue's targets name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+MAP = "home"
+NUM_STEPS = 128
+
+
+# ------------------------------------------------------------------ NumPy env
+class NumpyGrid:
+    """``n`` copies of the grid map, stepped together in NumPy (goal reward only)."""
+
+    def __init__(self, n: int, seed: int = 0) -> None:
+        from tpo.envs import load_map
+        from tpo.envs.grid import GridNav
+
+        env = GridNav(load_map(MAP), random_start=True)
+        model = env.tabular(0.99).model
+        self.obs_table = env.tabular_observations().astype(np.float32)
+        self.next = model.successors[:, :, 0]
+        self.reward = model.rewards[:, :, list(model.objectives).index("goal")].astype(np.float32)
+        self.terminal = model.terminal
+        self.starts = np.flatnonzero(~model.terminal)
+        self.max_steps = int(env.params.max_steps)
+        self.n, self.num_actions = n, model.n_actions
+        self.obs_dim = self.obs_table.shape[1]
+        self.rng = np.random.default_rng(seed)
+        self.state = self.rng.choice(self.starts, n)
+        self.t = np.zeros(n, np.int64)
+
+    def reset(self) -> np.ndarray:
+        self.state = self.rng.choice(self.starts, self.n)
+        self.t[:] = 0
+        return self.obs_table[self.state]
+
+    def step(self, action: np.ndarray):
+        reward = self.reward[self.state, action]
+        self.state = self.next[self.state, action]
+        self.t += 1
+        term = self.terminal[self.state]
+        trunc = (self.t >= self.max_steps) & ~term
+        done = term | trunc
+        if done.any():
+            self.state[done] = self.rng.choice(self.starts, int(done.sum()))
+            self.t[done] = 0
+        return self.obs_table[self.state], reward, term, trunc
+
+
+# ------------------------------------------------------------------------ JAX
+def run_jax(dag: str, n_envs: int, updates: int) -> dict:
+    import jax
+
+    from tpo.algo import TPOConfig, Trainer
+    from tpo.envs import load_map
+    from tpo.envs.grid import GridNav
+    from tpo.graph import ObjectiveGraph
+
+    env = GridNav(load_map(MAP), random_start=True)
+    config = TPOConfig(num_envs=n_envs, num_steps=NUM_STEPS)
+    graph = ObjectiveGraph.parse(dag, 0.0, objectives=env.objectives)
+    n_phases = len(graph.order)
+    trainer = Trainer(env, graph, config, config.batch_size * (2 * updates + 1) * n_phases)
+    state = trainer.init(jax.random.key(0))
+    run = jax.jit(trainer.run, static_argnums=2)
+    slack = trainer.slack_array()
+    t0 = time.perf_counter()
+    state, _ = run(state, slack, updates)
+    jax.block_until_ready(state)
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    state, _ = run(state, slack, updates)
+    jax.block_until_ready(state)
+    return {"seconds": time.perf_counter() - t0, "steps": updates * config.batch_size,
+            "compile_s": compile_s}
+
+
+# -------------------------------------------------------------------- PyTorch
+def run_torch(n_envs: int, updates: int) -> dict:
+    """A CleanRL-style PPO (ppo.py's loop) written here, on :class:`NumpyGrid`."""
+    import torch
+    from torch import nn
+
+    torch.set_num_threads(2)
+    torch.manual_seed(0)
+    env = NumpyGrid(n_envs)
+
+    def layer(i: int, o: int, std: float = np.sqrt(2)) -> nn.Linear:
+        lin = nn.Linear(i, o)
+        nn.init.orthogonal_(lin.weight, std)
+        nn.init.zeros_(lin.bias)
+        return lin
+
+    def mlp(out: int, std: float) -> nn.Sequential:
+        return nn.Sequential(layer(env.obs_dim, 64), nn.Tanh(), layer(64, 64), nn.Tanh(),
+                             layer(64, out, std))
+
+    actor, critic = mlp(env.num_actions, 0.01), mlp(1, 1.0)
+    params = [*actor.parameters(), *critic.parameters()]
+    opt = torch.optim.Adam(params, lr=1e-3, eps=1e-5)
+    gamma, lam, clip, batch = 0.99, 0.95, 0.2, n_envs * NUM_STEPS
+    obs = torch.as_tensor(env.reset())
+
+    def update() -> None:
+        nonlocal obs
+        b_obs = torch.zeros(NUM_STEPS, n_envs, env.obs_dim)
+        b_act = torch.zeros(NUM_STEPS, n_envs, dtype=torch.long)
+        b_logp, b_rew, b_val, b_next, b_term, b_done = (torch.zeros(NUM_STEPS, n_envs)
+                                                        for _ in range(6))
+        with torch.no_grad():
+            for t in range(NUM_STEPS):
+                dist = torch.distributions.Categorical(logits=actor(obs))
+                action = dist.sample()
+                b_obs[t], b_act[t], b_logp[t] = obs, action, dist.log_prob(action)
+                b_val[t] = critic(obs).squeeze(-1)
+                nxt, rew, term, trunc = env.step(action.numpy())
+                obs = torch.as_tensor(nxt)
+                b_rew[t] = torch.as_tensor(rew)
+                b_next[t] = critic(obs).squeeze(-1)  # bootstraps truncation (approx.)
+                b_term[t] = torch.as_tensor(term, dtype=torch.float32)
+                b_done[t] = torch.as_tensor(term | trunc, dtype=torch.float32)
+            adv = torch.zeros(NUM_STEPS, n_envs)
+            last = torch.zeros(n_envs)
+            for t in reversed(range(NUM_STEPS)):
+                delta = b_rew[t] + gamma * b_next[t] * (1 - b_term[t]) - b_val[t]
+                last = delta + gamma * lam * (1 - b_done[t]) * last
+                adv[t] = last
+            ret = adv + b_val
+        f_obs, f_act, f_logp = b_obs.reshape(batch, -1), b_act.reshape(-1), b_logp.reshape(-1)
+        f_adv, f_ret = adv.reshape(-1), ret.reshape(-1)
+        for _ in range(4):
+            for idx in torch.randperm(batch).reshape(4, -1):
+                dist = torch.distributions.Categorical(logits=actor(f_obs[idx]))
+                ratio = (dist.log_prob(f_act[idx]) - f_logp[idx]).exp()
+                a = f_adv[idx]
+                a = (a - a.mean()) / (a.std() + 1e-8)
+                pg = torch.max(-a * ratio, -a * ratio.clamp(1 - clip, 1 + clip)).mean()
+                vl = 0.5 * ((critic(f_obs[idx]).squeeze(-1) - f_ret[idx]) ** 2).mean()
+                loss = pg - 0.01 * dist.entropy().mean() + 0.5 * vl
+                opt.zero_grad()
+                loss.backward()
+                nn.utils.clip_grad_norm_(params, 0.5)
+                opt.step()
+
+    update()  # warm-up
+    t0 = time.perf_counter()
+    for _ in range(updates):
+        update()
+    return {"seconds": time.perf_counter() - t0, "steps": updates * batch}
+
+
+# ------------------------------------------------------------------------ SB3
+def run_sb3(n_envs: int, updates: int) -> dict:
+    import gymnasium as gym
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecEnv
+
+    torch.set_num_threads(2)
+
+    class SB3Grid(VecEnv):
+        def __init__(self, n: int) -> None:
+            self.grid = NumpyGrid(n)
+            super().__init__(n, gym.spaces.Box(0.0, 1.0, (self.grid.obs_dim,), np.float32),
+                             gym.spaces.Discrete(self.grid.num_actions))
+
+        def reset(self):
+            return self.grid.reset()
+
+        def step_async(self, actions):
+            self._actions = actions
+
+        def step_wait(self):
+            obs, rew, term, trunc = self.grid.step(self._actions)
+            infos = [{"TimeLimit.truncated": bool(t), "terminal_observation": o}
+                     for t, o in zip(trunc, obs, strict=True)]
+            return obs, rew, term | trunc, infos
+
+        def close(self):
+            pass
+
+        def get_attr(self, name, indices=None):
+            return [None] * self.num_envs
+
+        def set_attr(self, name, value, indices=None):
+            pass
+
+        def env_method(self, name, *args, indices=None, **kwargs):
+            return [None] * self.num_envs
+
+        def env_is_wrapped(self, wrapper_class, indices=None):
+            return [False] * self.num_envs
+
+    batch = n_envs * NUM_STEPS
+    model = PPO("MlpPolicy", SB3Grid(n_envs), n_steps=NUM_STEPS, batch_size=batch // 4,
+                n_epochs=4, learning_rate=1e-3, ent_coef=0.01, device="cpu", seed=0,
+                policy_kwargs={"net_arch": [64, 64], "activation_fn": torch.nn.Tanh})
+    model.learn(batch)  # warm-up
+    t0 = time.perf_counter()
+    model.learn(updates * batch, reset_num_timesteps=False)
+    return {"seconds": time.perf_counter() - t0, "steps": updates * batch}
+
+
+LEARNERS = {
+    "tpo": lambda n, u: run_jax("M>A>G", n, u),
+    "ppo": lambda n, u: run_jax("goal", n, u),
+    "torch": run_torch,
+    "sb3": run_sb3,
+}
+
+
+def measure(name: str, n_envs: int, updates: int) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--one", name, str(n_envs), str(updates)],
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--envs", type=int, nargs="+", default=[16, 256])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seconds", type=float, default=4.0,
+                        help="rough length of one measurement")
+    parser.add_argument("--learners", nargs="+", default=list(LEARNERS))
+    parser.add_argument("--one", nargs=3, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one:
+        name, n_envs, updates = args.one[0], int(args.one[1]), int(args.one[2])
+        result = LEARNERS[name](n_envs, updates)
+        result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(json.dumps(result))
+        return
+    guess = {"tpo": 60e3, "ppo": 70e3, "torch": 15e3, "sb3": 4e3}  # steps/s, to size runs
+    rows = {}
+    for n_envs in args.envs:
+        for name in args.learners:
+            batch = n_envs * NUM_STEPS
+            updates = max(2, round(args.seconds * guess[name] * (1 + n_envs / 64) / 2 / batch))
+            runs = [measure(name, n_envs, updates) for _ in range(args.repeats)]
+            rate = statistics.median(r["steps"] / r["seconds"] for r in runs)
+            rss = max(r["peak_rss_mb"] for r in runs)
+            rows[name, n_envs] = rate
+            extra = f", compile {statistics.median(r['compile_s'] for r in runs):.1f} s" \
+                if "compile_s" in runs[0] else ""
+            print(f"{name:6} {n_envs:4d} envs: {rate / 1e3:8.1f} k steps/s "
+                  f"(median of {len(runs)}, {runs[0]['steps']} steps each{extra}), "
+                  f"peak RSS {rss:.0f} MB", flush=True)
+    for n_envs in args.envs:
+        r = {k[0]: v for k, v in rows.items() if k[1] == n_envs}
+        ratios = [f"{a}/{b} {r[a] / r[b]:.2f}x" for a, b in
+                  (("tpo", "ppo"), ("tpo", "torch"), ("tpo", "sb3"), ("ppo", "torch"))
+                  if a in r and b in r]
+        print(f"{n_envs:4d} envs: " + ", ".join(ratios))
+
+
+if __name__ == "__main__":
+    main()
