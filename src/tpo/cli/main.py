@@ -1,4 +1,4 @@
-"""The ``tpo`` command line: ``tpo maps``, ``tpo solve``, ``tpo train``, ``tpo eval``.
+"""The ``tpo`` command line: ``tpo maps``, ``solve``, ``train``, ``eval``, ``reproduce``.
 
 Every user mistake ends in one line ``tpo: error: ...`` on stderr and exit code 2.
 """
@@ -8,7 +8,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Sequence
+from itertools import pairwise
 from pathlib import Path
 
 from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
@@ -151,6 +153,64 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------- reproduce
+def parse_numbers(text: str, name: str, kind: type = float) -> tuple:
+    try:
+        values = tuple(kind(v) for v in text.split(","))
+    except ValueError:
+        raise UsageError(f"bad {name} '{text}': give comma-separated numbers") from None
+    return values
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from tqdm import tqdm
+
+    from tpo.experiments.reproduce import Settings, jobs, reproduce
+
+    settings = Settings.quick() if args.quick else Settings()
+    changes: dict = {}
+    if args.map:
+        load_map(args.map)
+        changes["map"] = args.map
+    if args.slacks:
+        slacks = parse_numbers(args.slacks, "--slacks")
+        if len(slacks) < 2 or any(b <= a for a, b in pairwise(slacks)) \
+                or slacks[0] < 0:
+            raise UsageError("--slacks needs at least two increasing values >= 0")
+        changes["slacks"] = slacks
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise UsageError("--seeds must be at least 1")
+        changes["seeds"] = tuple(range(args.seeds))
+    if args.steps is not None:
+        changes["steps"] = args.steps
+    if args.workers is not None:
+        if args.workers < 1:
+            raise UsageError("--workers must be at least 1")
+        changes["workers"] = args.workers
+    settings = replace(settings, **changes)
+    weights = {p.name: len(xs) * len(settings.seeds) * settings.steps
+               for p, xs in jobs(settings)}
+    bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True, disable=args.quiet,
+               desc="reproduce")
+    t0 = time.monotonic()
+
+    def progress(fractions: dict[str, float]) -> None:
+        bar.update(sum(weights[n] * f for n, f in fractions.items()) - bar.n)
+
+    try:
+        records = reproduce(args.out, settings, progress)
+    finally:
+        bar.close()
+    out = Path(args.out)
+    print((out / "report.md").read_text().split("## Direction of each line")[1].strip())
+    print(f"\nfigures, tables and report in {out} ({time.monotonic() - t0:.0f} s; "
+          f"{sum(r['seconds'] for r in records.values()):.0f} s of panel time)")
+    return 0
+
+
 # ------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -193,6 +253,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=100, help="Monte Carlo episodes")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_train)
+
+    p = sub.add_parser("reproduce", help="the paper's Figures 2 and 3, with plots and report")
+    p.add_argument("--out", required=True, help="output directory (resumed if it exists)")
+    p.add_argument("--quick", action="store_true",
+                   help="small budget on the small map (CI): 2 slacks, 2 seeds")
+    p.add_argument("--map", help="bundled map or TOML file (default home)")
+    p.add_argument("--slacks", help="slack values of the x-axis (default 0,1,2,5,10,20,50,100)")
+    p.add_argument("--seeds", type=int, help="number of seeds (default 5)")
+    p.add_argument("--steps", type=int, help="env steps per configuration and seed")
+    p.add_argument("--workers", type=int, help="worker processes (default 2)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(handler=cmd_reproduce)
 
     p = sub.add_parser("eval", help="re-evaluate a saved run directory")
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")

@@ -59,8 +59,8 @@ def plot_paths(navmap: NavMap, paths: Sequence[np.ndarray], labels: Sequence[str
         offset = 0.15 * (i - (n - 1) / 2)
         draw_path(ax, cells, colors[i % len(colors)], labels[i] if i < len(labels) else None,
                   offset)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.01), ncol=2 + n, frameon=False,
-              fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.01), ncol=2 + n if w >= 20 else 2,
+              frameon=False, fontsize=8)
     if title:
         ax.set_title(title, fontsize=10)
     fig.tight_layout()

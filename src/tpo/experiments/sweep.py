@@ -9,17 +9,23 @@ slack and gamma.
 
 from __future__ import annotations
 
+import os
+import tempfile
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import serialization
 
-from tpo.algo import TPOConfig, Trainer
+from tpo.algo import TPOConfig, Trainer, TrainState
 from tpo.algo.agent import env_spec, make_env
 from tpo.algo.evaluate import episode_returns
 from tpo.envs.grid import GridNav
+from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import evaluate_policy, solve_lar
 
@@ -62,13 +68,17 @@ Progress = Callable[[int, int], None]
 
 def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence[float]],
               seeds: Sequence[int], config: TPOConfig, total_timesteps: int, *,
-              episodes: int = 8, chunk_updates: int = 32,
-              progress: Progress | None = None) -> SweepResult:
+              episodes: int = 8, chunk_updates: int = 32, progress: Progress | None = None,
+              checkpoint: Path | None = None, checkpoint_seconds: float = 60.0
+              ) -> SweepResult:
     """Train ``dag`` at every slack vector × seed in one compiled run and evaluate.
 
     ``env`` is the training env (e.g. with random starts); evaluation starts
     from the map's start. ``progress(updates_done, num_updates)`` is called
-    after every chunk.
+    after every chunk. With ``checkpoint`` (a file), the stacked training state
+    is saved there at most every ``checkpoint_seconds`` (atomically, at chunk
+    boundaries) and a later call with the same arguments resumes from it, to
+    the same result.
     """
     slack_arr = np.asarray(slacks, np.float32)
     first = slack_arr[0].tolist() if slack_arr.ndim == 2 and len(slack_arr) else []
@@ -81,6 +91,9 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(slack_arr), *x.shape)), states)
     compiled: dict[int, Callable] = {}
     done = 0
+    if checkpoint is not None and checkpoint.exists():
+        states, done = _load_states(checkpoint, states)
+    saved_at = time.monotonic()
     while done < trainer.num_updates:
         n = min(chunk_updates, trainer.num_updates - done)
         if n not in compiled:
@@ -89,10 +102,35 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
             compiled[n] = jax.jit(jax.vmap(over_seeds))
         states = compiled[n](states, jnp.asarray(slack_arr))
         done += n
+        if checkpoint is not None and time.monotonic() - saved_at > checkpoint_seconds:
+            _save_states(checkpoint, states, done)
+            saved_at = time.monotonic()
         if progress is not None:
             progress(done, trainer.num_updates)
     return evaluate_sweep(trainer, states.params["actor"], env, graphs, slack_arr,
                           tuple(seeds), episodes)
+
+
+def _save_states(path: Path, states: TrainState, done: int) -> None:
+    blob = serialization.msgpack_serialize({
+        "done": done, "states": serialization.to_state_dict(
+            states.replace(key=jax.random.key_data(states.key)))})
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(blob)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _load_states(path: Path, template: TrainState) -> tuple[TrainState, int]:
+    try:
+        saved = serialization.msgpack_restore(path.read_bytes())
+        states = serialization.from_state_dict(
+            template.replace(key=jax.random.key_data(template.key)), saved["states"])
+    except (ValueError, KeyError, TypeError) as err:
+        raise TPOError(f"{path} is not a checkpoint of this sweep: {err}") from None
+    return states.replace(key=jax.random.wrap_key_data(states.key)), int(saved["done"])
 
 
 def evaluate_sweep(trainer: Trainer, actors: dict, env: GridNav,
