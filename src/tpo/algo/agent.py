@@ -16,10 +16,11 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -27,12 +28,13 @@ from flax import serialization
 
 from tpo.algo.config import TPOConfig
 from tpo.algo.evaluate import exact_values, monte_carlo, summarize
+from tpo.algo.host import EnvFactory, HostEnv, HostRunner, env_factory
 from tpo.algo.networks import mode, sample
 from tpo.algo.train import Trainer, TrainState
 from tpo.envs import load_map, parse_map
 from tpo.envs.continuous import ContinuousNav
 from tpo.envs.grid import GridNav
-from tpo.errors import TPOError
+from tpo.errors import MapError, TPOError
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar
 
@@ -40,8 +42,15 @@ FORMAT = 2
 Callback = Callable[[dict[str, np.ndarray], int], bool | None]
 
 
-def env_spec(env: GridNav | ContinuousNav) -> dict[str, Any]:
-    """Constructor arguments that rebuild ``env`` (the map travels as TOML text)."""
+def env_spec(env: GridNav | ContinuousNav | HostEnv) -> dict[str, Any]:
+    """Constructor arguments that rebuild ``env`` (the map travels as TOML text; a
+    Gymnasium env by its id)."""
+    if isinstance(env, HostEnv):
+        if env.env_id is None:
+            raise TPOError("cannot save a model of a Gymnasium env given as an object or "
+                           "factory: create the model from its id, e.g. "
+                           "TPO('mo-gymnasium:deep-sea-treasure-v0', ...)")
+        return {"kind": "gym", "id": env.env_id, "objectives": list(env.objectives)}
     if isinstance(env, GridNav):
         return {"kind": "grid", "map": env.navmap.to_toml(), "slip": float(env.params.slip),
                 "observation": env.observation, "max_steps": int(env.params.max_steps),
@@ -67,31 +76,63 @@ def make_env(spec: dict[str, Any], *, evaluation: bool = False) -> GridNav | Con
     raise TPOError(f"unknown environment kind '{kind}'")
 
 
+def _host_env(env: str | gym.Env | EnvFactory, objectives: Sequence[str],
+              num_envs: int) -> HostEnv:
+    if isinstance(env, gym.Env):
+        if env.spec is None:
+            raise TPOError("a Gymnasium env object needs a spec (make it with gym.make) "
+                           "or pass a factory: TPO(lambda: MyEnv(), ...)")
+        spec = env.spec
+        return HostEnv(lambda: gym.make(spec), objectives, num_envs, env_id=spec.id)
+    return HostEnv(env_factory(env), objectives, num_envs,
+                   env_id=env if isinstance(env, str) else None)
+
+
 class TPO:
-    """Topological policy optimization on a JAX navigation environment.
+    """Topological policy optimization.
 
     Args:
-        env: a :class:`GridNav` / :class:`ContinuousNav`, or a bundled map name or
-            TOML path (then a grid with random starts for training).
+        env: a JAX navigation env (:class:`GridNav`, :class:`ContinuousNav`), a
+            bundled map name or TOML path (a grid with random starts), or a
+            Gymnasium env with vector rewards, stepped on the host: an id
+            ``"PACKAGE:ENV_ID"`` (``"mo-gymnasium:deep-sea-treasure-v0"``), a
+            ``gymnasium.Env`` made by ``gym.make``, or a factory of envs.
         graph: an :class:`ObjectiveGraph` or a spec string such as ``"M>A>G"``
             (a single name, e.g. ``"goal"``, is plain PPO).
         slack: one slack or one per edge (ignored when ``graph`` is a graph).
         config: hyperparameters.
-        seed: PRNG seed of the parameters and the run.
+        seed: PRNG seed of the parameters, the run and a Gymnasium env's resets.
+        objectives: names of a Gymnasium env's reward components, in order.
     """
 
-    def __init__(self, env: GridNav | ContinuousNav | str, graph: ObjectiveGraph | str,
-                 slack: float | list[float] = 0.0, config: TPOConfig | None = None,
-                 seed: int = 0) -> None:
-        if isinstance(env, str | Path):
-            env = GridNav(load_map(env), random_start=True)
+    def __init__(self, env: GridNav | ContinuousNav | str | gym.Env | EnvFactory,
+                 graph: ObjectiveGraph | str, slack: float | list[float] = 0.0,
+                 config: TPOConfig | None = None, seed: int = 0,
+                 objectives: Sequence[str] | None = None) -> None:
+        self.config = config or TPOConfig()
+        host = isinstance(env, gym.Env) or callable(env) or (
+            isinstance(env, str) and ":" in env and not Path(env).exists())
+        if host:
+            if objectives is None:
+                raise TPOError("name the Gymnasium env's reward components in order: "
+                               "objectives=[...]")
+            env = _host_env(env, objectives, self.config.num_envs)
+        elif isinstance(env, str | Path):
+            try:
+                navmap = load_map(env)
+            except MapError as err:
+                if Path(env).exists():
+                    raise
+                raise MapError(f"{err}; a Gymnasium env is named PACKAGE:ENV_ID, e.g. "
+                               "mo-gymnasium:deep-sea-treasure-v0") from None
+            env = GridNav(navmap, random_start=True)
         self.env = env
-        self.eval_env = make_env(env_spec(env), evaluation=True)
+        self.eval_env = None if host else make_env(env_spec(env), evaluation=True)
         if isinstance(graph, str):
             graph = ObjectiveGraph.parse(graph, slack, objectives=env.objectives)
         self.graph = graph.bind(env.objectives)
-        self.config = config or TPOConfig()
         self.seed = seed
+        self._fresh_env = False
         self.state: TrainState | None = None
         self.trainer: Trainer | None = None
         self._run: Callable | None = None
@@ -111,7 +152,8 @@ class TPO:
         """
         trainer = Trainer(self.env, self.graph, self.config, total_timesteps)
         params = None if self.state is None else self.state.params
-        state = trainer.init(jax.random.key(self.seed), params)
+        obs = self.env.reset(self.seed) if self.host else None
+        state = trainer.init(jax.random.key(self.seed), params, obs)
         if self.state is not None:
             state = state.replace(value_norm=self.state.value_norm)
         self.trainer, self.state, self._run = trainer, state, None
@@ -123,8 +165,14 @@ class TPO:
         ``chunk_updates``, so a resumed run computes exactly what an uninterrupted
         one does."""
         state, trainer = self._need_state(), self._need_trainer()
+        if self.host and self._fresh_env:  # a loaded model: the env's episodes restart
+            e, k = self.config.num_envs, len(self.env.objectives)
+            state = state.replace(obs=jnp.asarray(self.env.reset(self.seed + int(state.update))),
+                                  episode_return=jnp.zeros((e, k)), episode_length=jnp.zeros(e))
+            self._fresh_env = False
         if self._run is None:
-            self._run = jax.jit(trainer.run, static_argnums=2)
+            self._run = (HostRunner(trainer, self.env).run if self.host
+                         else jax.jit(trainer.run, static_argnums=2))
         slack = trainer.slack_array()
         done = int(state.update)
         while done < trainer.num_updates:
@@ -137,6 +185,11 @@ class TPO:
                                                  done) is False:
                 break
         return self
+
+    @property
+    def host(self) -> bool:
+        """Whether the env is a Gymnasium env stepped on the host."""
+        return isinstance(self.env, HostEnv)
 
     @property
     def finished(self) -> bool:
@@ -157,8 +210,11 @@ class TPO:
     # ---------------------------------------------------------------- policy
     def predict(self, obs: np.ndarray, deterministic: bool = True,
                 key: jax.Array | None = None) -> np.ndarray:
-        """Actions for a single observation ``[D]`` or a batch ``[N, D]``."""
+        """Actions for a single observation ``[D]`` or a batch ``[N, D]`` (for a
+        Gymnasium env, also one observation as the env returns it)."""
         state, trainer = self._need_state(), self._need_trainer()
+        if self.host and np.shape(obs)[-1:] != tuple(self.env.obs_shape):
+            obs = self.env.encode(obs)
         obs = jnp.asarray(obs, jnp.float32)
         if obs.shape[-1:] != tuple(self.env.obs_shape):
             raise TPOError(f"observation has shape {tuple(obs.shape)}, expected "
@@ -177,9 +233,15 @@ class TPO:
         gamma, objectives = self.config.gamma, self.env.objectives
         actor = state.params["actor"]
         result: dict[str, Any] = {"mc": {}}
+        if self.host and self.eval_env is None:
+            self.eval_env = self.env.copy(min(episodes, self.config.num_envs))
         for i, greedy in enumerate((True, False)):
-            returns = monte_carlo(trainer, actor, self.eval_env, jax.random.key(seed + i),
-                                  episodes, greedy, gamma)
+            if self.host:
+                returns = HostRunner(trainer, self.eval_env).monte_carlo(
+                    self.eval_env, actor, episodes, greedy, gamma, seed + i)
+            else:
+                returns = monte_carlo(trainer, actor, self.eval_env,
+                                      jax.random.key(seed + i), episodes, greedy, gamma)
             result["mc"]["greedy" if greedy else "stochastic"] = {
                 "undiscounted": summarize(returns["undiscounted"], objectives),
                 "discounted": summarize(returns["discounted"], objectives),
@@ -235,12 +297,18 @@ class TPO:
         if meta.get("format") != FORMAT:
             raise TPOError(f"{path}: unknown model format {meta.get('format')!r} "
                            f"(this version reads {FORMAT})")
-        env = make_env(meta["env"])
-        model = cls(env, ObjectiveGraph.parse(meta["dag"], meta["slack"],
-                                              objectives=env.objectives),
-                    config=TPOConfig.from_dict(meta["config"]), seed=meta["seed"])
+        spec, config = meta["env"], TPOConfig.from_dict(meta["config"])
+        if spec["kind"] == "gym":
+            model = cls(spec["id"], meta["dag"], meta["slack"], config, meta["seed"],
+                        objectives=spec["objectives"])
+            model._fresh_env = True
+        else:
+            env = make_env(spec)
+            model = cls(env, meta["dag"], meta["slack"], config, meta["seed"])
+        env = model.env
         model.trainer = Trainer(env, model.graph, model.config, meta["total_timesteps"])
-        template = model.trainer.init(jax.random.key(0))
+        blank = np.zeros((config.num_envs, *env.obs_shape), np.float32) if model.host else None
+        template = model.trainer.init(jax.random.key(0), obs=blank)
         try:
             state = serialization.from_bytes(
                 template.replace(key=jax.random.key_data(template.key)), blob)

@@ -63,15 +63,18 @@ class TrainState:
     episode_length: jax.Array  # [E]
 
 
-class Transition(NamedTuple):
-    obs: jax.Array
+class Rollout(NamedTuple):
+    """Experience of one update, time-major ``[T, E, ...]``: what any source of
+    rollouts (the jitted JAX env, or a host-stepped Gymnasium env) hands to
+    :meth:`Trainer.learn`."""
+
+    obs: jax.Array  # s_t
     action: jax.Array
-    log_prob: jax.Array
+    log_prob: jax.Array  # of the action under the acting policy
     reward: jax.Array  # [k]
-    value: jax.Array  # [k] all critics at s_t
-    next_value: jax.Array  # [k] all critics at the true s_{t+1}
-    terminated: jax.Array
-    done: jax.Array
+    final_obs: jax.Array  # the true s_{t+1} (before any auto-reset)
+    terminated: jax.Array  # float: s_{t+1} is terminal (no bootstrap)
+    done: jax.Array  # float: the episode ended (terminated or truncated)
 
 
 @dataclass(frozen=True)
@@ -151,17 +154,27 @@ class Trainer:
         """Network parameters of one seed (outside any vmap: DESIGN.md §6)."""
         return init_params(key, self.actor, self.critics, self.env.obs_shape)
 
-    def init(self, key: jax.Array, params: dict | None = None) -> TrainState:
-        """A fresh run; ``params`` default to :meth:`init_params` of ``key``."""
+    def init(self, key: jax.Array, params: dict | None = None,
+             obs: jax.Array | None = None) -> TrainState:
+        """A fresh run; ``params`` default to :meth:`init_params` of ``key``. A JAX
+        env resets itself; a host-stepped env passes its first observations ``obs``
+        ``[E, D]`` (the state then holds no env state)."""
         k_params, k_env, k_run = jax.random.split(key, 3)
         params = self.init_params(k_params) if params is None else params
-        return self._init_state(params, k_env, k_run)
+        env_state = None
+        if obs is None:
+            obs, env_state = self._reset(k_env)
+        return self._init_state(params, env_state, jnp.asarray(obs, jnp.float32), k_run)
 
     @partial(jax.jit, static_argnums=0)
-    def _init_state(self, params: dict, k_env: jax.Array, k_run: jax.Array) -> TrainState:
+    def _reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
+        return jax.vmap(self.env.reset, in_axes=(0, None))(
+            jax.random.split(key, self.config.num_envs), self.env.params)
+
+    @partial(jax.jit, static_argnums=0)
+    def _init_state(self, params: dict, env_state: Any, obs: jax.Array, k_run: jax.Array
+                    ) -> TrainState:
         e, k = self.config.num_envs, len(self.problem.objectives)
-        obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(
-            jax.random.split(k_env, e), self.env.params)
         return TrainState(params, params["actor"], self._actor_tx.init(params["actor"]),
                           self._critic_tx.init(params["critics"]), env_state, obs, k_run,
                           jnp.zeros((), jnp.int32), ValueNorm.init(k), jnp.zeros((e, k)),
@@ -171,24 +184,38 @@ class Trainer:
     def phase_of(self, update: jax.Array) -> jax.Array:
         return jnp.sum(update >= jnp.asarray(self.phase_start[1:])).astype(jnp.int32)
 
-    def update(self, state: TrainState, slack: jax.Array) -> tuple[TrainState, dict]:
-        """One PPO update of the current phase: rollout, Lagrangian advantages, epochs."""
-        cfg, prob = self.config, self.problem
-        phase = jnp.minimum(self.phase_of(state.update), len(prob.order) - 1)
-        column = jnp.asarray(prob.order)[phase]
-        pick = jax.nn.one_hot(column, len(prob.objectives))
+    def phase_info(self, state: TrainState) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """The current phase, its first update, and whether this update refits the
+        critic with greedy rollouts (``critic_refit``)."""
+        phase = jnp.minimum(self.phase_of(state.update), len(self.problem.order) - 1)
         start = jnp.asarray(self.phase_start)[phase]
         refit = (state.update - start) >= jnp.asarray(self.policy_updates)[phase]
-        state, batch, episodes = self._rollout(state, greedy=refit)
+        return phase, start, refit
 
-        adv_all = ancestral_advantages(batch.reward, batch.value, batch.next_value,
-                                       batch.terminated, cfg.gamma)
+    def update(self, state: TrainState, slack: jax.Array) -> tuple[TrainState, dict]:
+        """One PPO update of the current phase: a rollout of the JAX env, then
+        :meth:`learn`."""
+        _, _, refit = self.phase_info(state)
+        state, rollout, episodes = self._rollout(state, greedy=refit)
+        return self.learn(state, slack, rollout, episodes)
+
+    def learn(self, state: TrainState, slack: jax.Array, rollout: Rollout,
+              episodes: dict) -> tuple[TrainState, dict]:
+        """The update from one rollout: Lagrangian advantages, then PPO epochs."""
+        cfg, prob = self.config, self.problem
+        phase, start, refit = self.phase_info(state)
+        column = jnp.asarray(prob.order)[phase]
+        pick = jax.nn.one_hot(column, len(prob.objectives))
+        # The critics see the whole rollout at once (one batched call, not one per step).
+        value, next_value = self.values(state, jnp.stack([rollout.obs, rollout.final_obs]))
+        adv_all = ancestral_advantages(rollout.reward, value, next_value, rollout.terminated,
+                                       cfg.gamma)
         c = violations(adv_all, jnp.asarray(prob.parents), slack)
         penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
         beta = jnp.asarray(prob.beta)[phase]
         advantages, targets = lagrangian_advantages(
-            cfg.advantage, batch.reward @ pick, batch.value @ pick, batch.next_value @ pick,
-            penalty, beta, batch.terminated, batch.done, cfg.gamma, cfg.gae_lambda)
+            cfg.advantage, rollout.reward @ pick, value @ pick, next_value @ pick,
+            penalty, beta, rollout.terminated, rollout.done, cfg.gamma, cfg.gae_lambda)
 
         first = state.update == start
         if cfg.reset_actor:
@@ -210,7 +237,7 @@ class Trainer:
         mean, std = value_norm.stats()
         scale = (mean @ pick, std @ pick)
         flat = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]),
-                            (batch.obs, batch.action, batch.log_prob, batch.value @ pick,
+                            (rollout.obs, rollout.action, rollout.log_prob, value @ pick,
                              advantages, targets))
         key, k_epochs = jax.random.split(state.key)
         (params, actor_opt, critic_opt), losses = jax.lax.scan(
@@ -232,7 +259,7 @@ class Trainer:
         return {**actor, "MLP_0": {**mlp, head: jax.tree.map(lambda x: x * factor, mlp[head])}}
 
     def _rollout(self, state: TrainState, greedy: jax.Array
-                 ) -> tuple[TrainState, Transition, dict]:
+                 ) -> tuple[TrainState, Rollout, dict]:
         cfg, env = self.config, self.env
         actor_p = state.params["actor"]
 
@@ -253,25 +280,22 @@ class Trainer:
             done_len = done_len + (ep_len * d).sum()
             done_n = done_n + d.sum()
             ep_ret, ep_len = ep_ret * (1 - d[:, None]), ep_len * (1 - d)
-            out = (obs, action, logp, reward, info["final_obs"], term.astype(jnp.float32), d)
+            out = Rollout(obs, action, logp, reward, info["final_obs"],
+                          term.astype(jnp.float32), d)
             return (env_state, obs2, ep_ret, ep_len, done_ret, done_len, done_n), out
 
         key, k_roll = jax.random.split(state.key)
         k = len(self.problem.objectives)
         init = (state.env_state, state.obs, state.episode_return, state.episode_length,
                 jnp.zeros(k), jnp.zeros(()), jnp.zeros(()))
-        (env_state, obs, ep_ret, ep_len, done_ret, done_len, done_n), steps = jax.lax.scan(
+        (env_state, obs, ep_ret, ep_len, done_ret, done_len, done_n), rollout = jax.lax.scan(
             step, init, jax.random.split(k_roll, cfg.num_steps))
-        # The critics see the whole rollout at once (one batched call, not one per step).
-        obs_t, action, logp, reward, final_obs, term, done = steps
-        values = self.values(state, jnp.stack([obs_t, final_obs]))
-        batch = Transition(obs_t, action, logp, reward, values[0], values[1], term, done)
         n = jnp.maximum(done_n, 1.0)
         episodes = {"episodes": done_n, "episode_return": done_ret / n,
                     "episode_length": done_len / n}
         state = state.replace(env_state=env_state, obs=obs, key=key, episode_return=ep_ret,
                               episode_length=ep_len)
-        return state, batch, episodes
+        return state, rollout, episodes
 
     def _epoch(self, carry, key, *, column, lr, scale, data):
         cfg = self.config

@@ -1,0 +1,106 @@
+"""TPO on Gymnasium / MO-Gymnasium envs stepped on the host (issue 6)."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from tpo.algo import TPO, TPOConfig
+from tpo.algo.host import EnvError, HostEnv
+from tpo.errors import TPOError
+
+SMALL = TPOConfig(num_envs=4, num_steps=16)
+
+
+class Line(gym.Env):
+    """Walk right along 5 cells; rewards [reach (-1 per step), left (+1 per left move)]."""
+
+    def __init__(self, reward_fn=None, obs_space=None, action_space=None, grow=False):
+        self.observation_space = obs_space or gym.spaces.Box(0, 4, (1,), np.float32)
+        self.action_space = action_space or gym.spaces.Discrete(2)
+        self.reward_space = gym.spaces.Box(np.array([-1, 0]), np.array([-1, 1]), (2,))
+        self.reward_fn, self.grow, self.pos, self.t = reward_fn, grow, 0, 0
+
+    def _obs(self):
+        if isinstance(self.observation_space, gym.spaces.Discrete):
+            return self.pos
+        size = 1 + (self.t if self.grow else 0)
+        return np.full(size, self.pos, np.float32)
+
+    def reset(self, seed=None, options=None):
+        super().reset(seed=seed)
+        self.pos, self.t = 0, 0
+        return self._obs(), {}
+
+    def step(self, action):
+        self.t += 1
+        self.pos = min(4, self.pos + 1) if action == 1 else max(0, self.pos - 1)
+        reward = np.array([-1.0, float(action == 0)])
+        if self.reward_fn is not None:
+            reward = self.reward_fn(self.t, reward)
+        return self._obs(), reward, self.pos == 4, self.t >= 20, {}
+
+
+def make_line(**kwargs):
+    return lambda: Line(**kwargs)
+
+
+@pytest.mark.parametrize(("env", "objectives", "message"), [
+    ("gym:CartPole-v1", ["a"], "has a scalar reward"),
+    ("mo-gymnasium:deep-sea-treasure-v0", ["a", "b", "c"],
+     "returns 2 reward components but 3 objectives are named"),
+    (make_line(obs_space=gym.spaces.Dict({"x": gym.spaces.Discrete(2)})), ["reach", "left"],
+     "supports Box and Discrete observations"),
+    (make_line(action_space=gym.spaces.MultiDiscrete([2, 2])), ["reach", "left"],
+     "supports Discrete and 1-D Box actions"),
+    ("deep-sea-treasure-v0", ["a", "b"], "a Gymnasium env is named PACKAGE:ENV_ID"),
+    ("mo-gymnasium:", ["a", "b"], "write PACKAGE:ENV_ID"),
+    ("no-such-package:Foo-v0", ["a", "b"], "cannot import 'no-such-package'"),
+    ("gym:NoSuchEnv-v0", ["a", "b"], "unknown env id 'NoSuchEnv-v0'"),
+])
+def test_unfit_envs_are_refused_before_training(env, objectives, message):
+    with pytest.raises(TPOError, match=message):
+        TPO(env, objectives[0], objectives=objectives, config=SMALL)
+
+
+def test_objectives_must_be_named():
+    with pytest.raises(TPOError, match="objectives="):
+        TPO("mo-gymnasium:deep-sea-treasure-v0", "treasure")
+
+
+def test_non_finite_reward_stops_training_naming_step_and_objective():
+    nan_at_3 = make_line(reward_fn=lambda t, r: np.array([r[0], np.nan]) if t == 3 else r)
+    model = TPO(nan_at_3, "left>reach", objectives=["reach", "left"], config=SMALL)
+    with pytest.raises(EnvError, match=r"non-finite reward nan for objective 'left' at "
+                                       r"update 0, step 2"):
+        model.learn(SMALL.batch_size * 2)
+
+
+def test_changing_observation_shape_is_an_error():
+    model = TPO(make_line(grow=True), "reach", objectives=["reach", "left"], config=SMALL)
+    with pytest.raises(EnvError, match=r"observation shape changed from \(1,\) to \(2,\)"):
+        model.learn(SMALL.batch_size)
+
+
+def test_discrete_observations_are_one_hot_and_episodes_auto_reset():
+    line = HostEnv(make_line(obs_space=gym.spaces.Discrete(5)), ["reach", "left"], 2)
+    obs = line.reset(seed=0)
+    assert obs.shape == (2, 5) and (obs[:, 0] == 1).all()
+    for _ in range(3):
+        obs, reward, term, trunc, final = line.step(np.array([1, 0]))
+    obs, reward, term, trunc, final = line.step(np.array([1, 0]))
+    assert term.tolist() == [True, False]  # env 0 reached cell 4
+    assert final[0].argmax() == 4 and obs[0].argmax() == 0  # true final obs; then reset
+    np.testing.assert_array_equal(reward, [[-1, 0], [-1, 1]])
+
+
+def test_plain_ppo_and_tpo_learn_a_host_env_and_save_and_load(tmp_path):
+    model = TPO("mo-gymnasium:deep-sea-treasure-v0", "treasure>time", slack=0.0,
+                objectives=["treasure", "time"], config=SMALL, seed=0)
+    model.learn(SMALL.batch_size * 4)
+    result = model.evaluate(episodes=4)
+    assert set(result) == {"mc"}
+    assert set(result["mc"]["greedy"]["undiscounted"]) == {"treasure", "time"}
+    loaded = TPO.load(model.save(tmp_path / "dst"))
+    obs = np.array([0, 0], np.int32)
+    assert loaded.predict(obs) == model.predict(obs)
+    assert loaded.resume().finished
