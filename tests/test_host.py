@@ -1,5 +1,7 @@
 """TPO on Gymnasium / MO-Gymnasium envs stepped on the host (issue 6)."""
 
+import json
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -86,9 +88,9 @@ def test_discrete_observations_are_one_hot_and_episodes_auto_reset():
     obs = line.reset(seed=0)
     assert obs.shape == (2, 5) and (obs[:, 0] == 1).all()
     for _ in range(3):
-        obs, reward, term, trunc, final = line.step(np.array([1, 0]))
+        line.step(np.array([1, 0]))
     obs, reward, term, trunc, final = line.step(np.array([1, 0]))
-    assert term.tolist() == [True, False]  # env 0 reached cell 4
+    assert term.tolist() == [True, False] and not trunc.any()  # env 0 reached cell 4
     assert final[0].argmax() == 4 and obs[0].argmax() == 0  # true final obs; then reset
     np.testing.assert_array_equal(reward, [[-1, 0], [-1, 1]])
 
@@ -104,3 +106,20 @@ def test_plain_ppo_and_tpo_learn_a_host_env_and_save_and_load(tmp_path):
     obs = np.array([0, 0], np.int32)
     assert loaded.predict(obs) == model.predict(obs)
     assert loaded.resume().finished
+
+
+def test_cli_trains_a_gymnasium_env_into_a_run_directory(tmp_path, capsys):
+    from tpo.cli.main import main
+
+    out = tmp_path / "dst"
+    assert main(["train", "--env", "mo-gymnasium:deep-sea-treasure-v0", "--objectives",
+                 "treasure,time", "--dag", "treasure>time", "--slack", "0", "--steps", "4096",
+                 "--out", str(out), "--quiet", "--episodes", "2"]) == 0
+    result = json.loads((out / "eval.json").read_text())
+    assert set(result) == {"mc"}
+    assert set(result["mc"]["greedy"]["discounted"]) == {"treasure", "time"}
+    assert (out / "model" / "model.json").exists() and (out / "metrics.csv").exists()
+    capsys.readouterr()
+    assert main(["train", "--env", "mo-gymnasium:deep-sea-treasure-v0", "--dag", "treasure",
+                 "--out", str(tmp_path / "x")]) == 2
+    assert "name the reward components of env" in capsys.readouterr().err

@@ -95,7 +95,8 @@ def print_solution(name: str, sol: LARSolution, summary: dict) -> None:
 
 
 # -------------------------------------------------------------------- train
-RUN_ARGS = ("map", "dag", "slack", "seed", "steps", "slip", "observation")
+RUN_ARGS = ("map", "dag", "slack", "seed", "steps", "slip", "observation", "env",
+            "objectives")
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -140,7 +141,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         result = train_run(run_dir, episodes=args.episodes, progress=progress)
     finally:
         bar.close()
-    print(json.dumps({"exact": result.get("exact"), "lar": result.get("lar")}, indent=2))
+    shown = {k: result[k] for k in ("exact", "lar") if k in result} or {
+        "mc greedy": result["mc"]["greedy"]}
+    print(json.dumps(shown, indent=2))
     print(f"run written to {run_dir}")
     return 0
 
@@ -244,6 +247,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, help="environment steps in all (default 1e6)")
     p.add_argument("--slip", type=float)
     p.add_argument("--observation", choices=("factored", "onehot", "coords"))
+    p.add_argument("--env", metavar="PACKAGE:ENV_ID",
+                   help="train on a Gymnasium env with vector rewards instead of a map, "
+                        "e.g. mo-gymnasium:deep-sea-treasure-v0")
+    p.add_argument("--objectives", metavar="A,B,...",
+                   help="names of the --env's reward components, in order")
     p.add_argument("--config", metavar="FILE.toml",
                    help="the same fields, plus any TPOConfig field, from TOML")
     p.add_argument("--out", help="run directory to create")

@@ -36,7 +36,8 @@ from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
 
 RUN_DEFAULTS: dict[str, Any] = {"map": "home", "dag": "M>A>G", "slack": [0.0], "seed": 0,
-                                "steps": 1_000_000, "slip": 0.0, "observation": "factored"}
+                                "steps": 1_000_000, "slip": 0.0, "observation": "factored",
+                                "env": "", "objectives": []}
 METRICS = ("episode_return", "episode_length", "penalty", "violation_rate", "policy_loss",
            "value_loss", "entropy", "approx_kl", "lr")
 CHECKPOINTS = 10  # per run, at chunk boundaries
@@ -58,6 +59,8 @@ class RunSpec:
     slip: float
     observation: str
     config: TPOConfig
+    env: str = ""  # a Gymnasium env "PACKAGE:ENV_ID" instead of a map
+    objectives: tuple[str, ...] = ()  # its reward components, in order
 
     @classmethod
     def from_settings(cls, settings: dict[str, Any]) -> RunSpec:
@@ -74,9 +77,16 @@ class RunSpec:
         for name in ("seed", "steps"):
             if isinstance(run[name], bool) or not isinstance(run[name], int):
                 raise RunError(f"{name} must be an integer, got {run[name]!r}")
+        objectives = run["objectives"]
+        if isinstance(objectives, str):
+            objectives = [o.strip() for o in objectives.split(",") if o.strip()]
+        if run["env"] and not objectives:
+            raise RunError(f"name the reward components of env '{run['env']}' in order: "
+                           "--objectives a,b,...")
         return cls(map=str(run["map"]), dag=str(run["dag"]), slack=slack, seed=run["seed"],
                    steps=run["steps"], slip=float(run["slip"]),
-                   observation=str(run["observation"]), config=TPOConfig.from_dict(settings))
+                   observation=str(run["observation"]), config=TPOConfig.from_dict(settings),
+                   env=str(run["env"]), objectives=tuple(objectives))
 
     @classmethod
     def from_toml(cls, path: str | Path) -> RunSpec:
@@ -86,13 +96,18 @@ class RunSpec:
             raise RunError(f"cannot read {path}: {err}") from None
 
     def to_toml(self) -> str:
-        fields = {"map": self.map, "dag": self.dag, "slack": list(self.slack),
-                  "seed": self.seed, "steps": self.steps, "slip": self.slip,
-                  "observation": self.observation, **self.config.to_dict()}
+        problem = ({"env": self.env, "objectives": list(self.objectives)} if self.env else
+                   {"map": self.map, "slip": self.slip, "observation": self.observation})
+        fields = {**problem, "dag": self.dag, "slack": list(self.slack), "seed": self.seed,
+                  "steps": self.steps, **self.config.to_dict()}
         return "".join(f"{k} = {_toml_value(v)}\n" for k, v in fields.items())
 
     def model(self) -> TPO:
-        """A fresh (untrained) model of this run; training starts from random starts."""
+        """A fresh (untrained) model of this run; on a map, training starts from
+        random starts."""
+        if self.env:
+            return TPO(self.env, self.dag, slack=list(self.slack), config=self.config,
+                       seed=self.seed, objectives=self.objectives)
         env = GridNav(load_map(self.map), slip=self.slip, observation=self.observation,
                       random_start=True)
         return TPO(env, self.dag, slack=list(self.slack), config=self.config, seed=self.seed)
