@@ -8,9 +8,11 @@ Every measurement runs in its own subprocess (so its peak RSS is its own) and
 reports env-steps/s of training: rollout + PPO update, 128 steps per env per
 update, 4 epochs of 4 minibatches, 64x64 tanh actor and critic(s), Adam. JAX runs
 are timed after compilation (reported apart); PyTorch and SB3 after one warm-up
-update. The PyTorch and SB3 learners step a NumPy vector version of the same map
-(the grid's exact model: one table lookup per step, observations from the same
-table as GridNav's factored observation), so the env is not what is compared.
+update. The PyTorch learner and ``sb3-vec`` step a NumPy vector version of the
+same map in one call (the grid's exact model: one table lookup per step,
+observations from the same table as GridNav's factored observation), so the env
+is not what is compared; ``sb3`` is SB3 as its users run it, ``make_vec_env`` of
+a plain one-copy Gymnasium env of the same tables (DummyVecEnv).
 Prints medians over ``--repeats`` and the ratios the issue's targets name.
 """
 
@@ -24,6 +26,7 @@ import subprocess
 import sys
 import time
 
+import gymnasium as gym
 import numpy as np
 
 MAP = "home"
@@ -70,9 +73,35 @@ class NumpyGrid:
         return self.obs_table[self.state], reward, term, trunc
 
 
+class GridEnv(gym.Env):
+    """One copy of the same grid as a plain Gymnasium env (what an SB3 user writes
+    and hands to ``make_vec_env``)."""
+
+    def __init__(self) -> None:
+        self.grid = NumpyGrid(1)
+        self.observation_space = gym.spaces.Box(0.0, 1.0, (self.grid.obs_dim,), np.float32)
+        self.action_space = gym.spaces.Discrete(self.grid.num_actions)
+
+    def reset(self, seed=None, options=None):
+        super().reset(seed=seed)
+        return self.grid.reset()[0], {}
+
+    def step(self, action):
+        s, t = int(self.grid.state[0]), int(self.grid.t[0]) + 1
+        reward = float(self.grid.reward[s, action])
+        s = int(self.grid.next[s, action])
+        self.grid.state[0], self.grid.t[0] = s, t
+        term = bool(self.grid.terminal[s])
+        trunc = t >= self.grid.max_steps and not term
+        return self.grid.obs_table[s], reward, term, trunc, {}
+
+
 # ------------------------------------------------------------------------ JAX
-def run_jax(dag: str, n_envs: int, updates: int) -> dict:
+def run_jax(dag: str, n_envs: int, updates: int, seeds: int = 1) -> dict:
+    """TPO's trainer; with ``seeds`` > 1, that many runs vmapped in one program
+    (the steps of all of them counted)."""
     import jax
+    import jax.numpy as jnp
 
     from tpo.algo import TPOConfig, Trainer
     from tpo.envs import load_map
@@ -84,17 +113,22 @@ def run_jax(dag: str, n_envs: int, updates: int) -> dict:
     graph = ObjectiveGraph.parse(dag, 0.0, objectives=env.objectives)
     n_phases = len(graph.order)
     trainer = Trainer(env, graph, config, config.batch_size * (2 * updates + 1) * n_phases)
-    state = trainer.init(jax.random.key(0))
-    run = jax.jit(trainer.run, static_argnums=2)
     slack = trainer.slack_array()
+    if seeds == 1:
+        state = trainer.init(jax.random.key(0))
+        run = jax.jit(lambda s: trainer.run(s, slack, updates))
+    else:
+        state = jax.tree.map(lambda *x: jnp.stack(x),
+                             *[trainer.init(jax.random.key(i)) for i in range(seeds)])
+        run = jax.jit(jax.vmap(lambda s: trainer.run(s, slack, updates)))
     t0 = time.perf_counter()
-    state, _ = run(state, slack, updates)
+    state, _ = run(state)
     jax.block_until_ready(state)
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    state, _ = run(state, slack, updates)
+    state, _ = run(state)
     jax.block_until_ready(state)
-    return {"seconds": time.perf_counter() - t0, "steps": updates * config.batch_size,
+    return {"seconds": time.perf_counter() - t0, "steps": seeds * updates * config.batch_size,
             "compile_s": compile_s}
 
 
@@ -173,10 +207,12 @@ def run_torch(n_envs: int, updates: int) -> dict:
 
 
 # ------------------------------------------------------------------------ SB3
-def run_sb3(n_envs: int, updates: int) -> dict:
-    import gymnasium as gym
+def run_sb3(n_envs: int, updates: int, batched: bool = False) -> dict:
+    """SB3's PPO on ``make_vec_env`` of :class:`GridEnv` (its usual DummyVecEnv), or,
+    ``batched``, on a custom VecEnv stepping :class:`NumpyGrid` in one call."""
     import torch
     from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecEnv
 
     torch.set_num_threads(2)
@@ -215,7 +251,8 @@ def run_sb3(n_envs: int, updates: int) -> dict:
             return [False] * self.num_envs
 
     batch = n_envs * NUM_STEPS
-    model = PPO("MlpPolicy", SB3Grid(n_envs), n_steps=NUM_STEPS, batch_size=batch // 4,
+    venv = SB3Grid(n_envs) if batched else make_vec_env(GridEnv, n_envs=n_envs, seed=0)
+    model = PPO("MlpPolicy", venv, n_steps=NUM_STEPS, batch_size=batch // 4,
                 n_epochs=4, learning_rate=1e-3, ent_coef=0.01, device="cpu", seed=0,
                 policy_kwargs={"net_arch": [64, 64], "activation_fn": torch.nn.Tanh})
     model.learn(batch)  # warm-up
@@ -227,8 +264,10 @@ def run_sb3(n_envs: int, updates: int) -> dict:
 LEARNERS = {
     "tpo": lambda n, u: run_jax("M>A>G", n, u),
     "ppo": lambda n, u: run_jax("goal", n, u),
+    "tpo-x8": lambda n, u: run_jax("M>A>G", n, u, seeds=8),
     "torch": run_torch,
     "sb3": run_sb3,
+    "sb3-vec": lambda n, u: run_sb3(n, u, batched=True),
 }
 
 
@@ -253,7 +292,8 @@ def main() -> None:
         result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         print(json.dumps(result))
         return
-    guess = {"tpo": 60e3, "ppo": 70e3, "torch": 15e3, "sb3": 4e3}  # steps/s, to size runs
+    guess = {"tpo": 60e3, "ppo": 70e3, "torch": 15e3, "sb3": 4e3, "sb3-vec": 15e3,
+             "tpo-x8": 15e3}  # steps/s (per run), to size the measurements
     rows = {}
     for n_envs in args.envs:
         for name in args.learners:
@@ -271,7 +311,8 @@ def main() -> None:
     for n_envs in args.envs:
         r = {k[0]: v for k, v in rows.items() if k[1] == n_envs}
         ratios = [f"{a}/{b} {r[a] / r[b]:.2f}x" for a, b in
-                  (("tpo", "ppo"), ("tpo", "torch"), ("tpo", "sb3"), ("ppo", "torch"))
+                  (("tpo", "ppo"), ("tpo", "torch"), ("tpo", "sb3"), ("tpo", "sb3-vec"),
+                   ("ppo", "torch"), ("tpo-x8", "sb3"))
                   if a in r and b in r]
         print(f"{n_envs:4d} envs: " + ", ".join(ratios))
 

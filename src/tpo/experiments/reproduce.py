@@ -73,7 +73,7 @@ class Settings:
     map: str = "home"
     slacks: tuple[float, ...] = (0, 1, 2, 5, 10, 20, 50, 100)
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
-    steps: int = 4_500_000
+    steps: int = 1_500_000
     workers: int = 2
 
     @classmethod
