@@ -86,3 +86,16 @@ def test_predict_checks_shapes_and_needs_parameters(model):
 def test_load_rejects_a_folder_that_is_not_a_model(tmp_path):
     with pytest.raises(TPOError, match="is not a saved tpo model"):
         TPO.load(tmp_path)
+
+
+def test_non_finite_training_stops_naming_phase_and_update_and_keeps_the_good_state():
+    from tpo.algo.agent import NonFiniteError
+
+    model = TPO("small", "M>A>G", slack=[100, 0], config=CONFIG)
+    model.learn(8 * 32 * 6, chunk_updates=2, callback=lambda m, n: n < 2)  # 2 per phase
+    poisoned = jax.tree.map(lambda x: x * np.nan, model.state.params["critics"])
+    model.state = model.state.replace(params={**model.state.params, "critics": poisoned})
+    with pytest.raises(NonFiniteError, match=r"non-finite policy_loss in phase 'avoid' at "
+                                             r"update 3; the last good state \(update 2\)"):
+        model.resume(chunk_updates=2)
+    assert int(model.state.update) == 2

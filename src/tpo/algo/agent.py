@@ -39,6 +39,10 @@ from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar
 
 FORMAT = 2
+
+
+class NonFiniteError(TPOError):
+    """Training produced NaN or infinity."""
 Callback = Callable[[dict[str, np.ndarray], int], bool | None]
 
 
@@ -177,14 +181,35 @@ class TPO:
         done = int(state.update)
         while done < trainer.num_updates:
             n = min(chunk_updates - done % chunk_updates, trainer.num_updates - done)
-            state, metrics = self._run(state, slack, n)
-            done += n
+            new_state, metrics = self._run(state, slack, n)
+            metrics = jax.tree.map(np.asarray, metrics)
+            self._check_finite(new_state, metrics, done)
+            state, done = new_state, done + n
             self.state = state
             self.num_timesteps += n * self.config.batch_size
-            if callback is not None and callback(jax.tree.map(np.asarray, metrics),
-                                                 done) is False:
+            if callback is not None and callback(metrics, done) is False:
                 break
         return self
+
+    def _check_finite(self, state: TrainState, metrics: dict[str, np.ndarray],
+                      done: int) -> None:
+        """Stop on a non-finite loss, return or parameter, naming the phase, the
+        update and the quantity; ``self.state`` keeps the last good state."""
+        for name in ("policy_loss", "value_loss", "entropy", "episode_return", "penalty"):
+            values = np.asarray(metrics[name]).reshape(len(metrics["phase"]), -1)
+            bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+            if bad.size:
+                i = int(bad[0])
+                raise NonFiniteError(f"non-finite {name} in phase "
+                                     f"'{self.graph.order[int(metrics['phase'][i])]}' at update "
+                                     f"{done + i + 1}; the last good state (update {done}) "
+                                     "is kept")
+        finite = jax.tree.map(lambda x: bool(jnp.isfinite(x).all()), state.params)
+        for path, ok in jax.tree_util.tree_flatten_with_path(finite)[0]:
+            if not ok:
+                raise NonFiniteError(f"non-finite parameters {jax.tree_util.keystr(path)} "
+                                     f"after update {int(state.update)}; the last good state "
+                                     f"(update {done}) is kept")
 
     @property
     def host(self) -> bool:
