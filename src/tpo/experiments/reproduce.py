@@ -178,10 +178,11 @@ def reproduce(out: str | Path, settings: Settings = Settings(),
             futures = [pool.submit(_run_panel, p, xs, settings, out, queue) for p, xs in todo]
             pending = set(futures)
             while pending:
+                changed = not queue.empty()
                 while not queue.empty():
                     name, fraction = queue.get()
                     fractions[name] = fraction
-                if progress is not None:
+                if progress is not None and changed:
                     progress(dict(fractions))
                 finished = [f for f in pending if f.done()]
                 for f in finished:

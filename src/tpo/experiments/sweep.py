@@ -100,7 +100,7 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
             over_seeds = jax.vmap(lambda st, sl, n=n: trainer.run(st, sl, n)[0],
                                   in_axes=(0, None))
             compiled[n] = jax.jit(jax.vmap(over_seeds))
-        states = compiled[n](states, jnp.asarray(slack_arr))
+        states = jax.block_until_ready(compiled[n](states, jnp.asarray(slack_arr)))
         done += n
         if checkpoint is not None and time.monotonic() - saved_at > checkpoint_seconds:
             _save_states(checkpoint, states, done)
