@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
@@ -93,27 +92,34 @@ def _iterate(model: TabularTMDP, reward: np.ndarray, allowed: np.ndarray,
              tol: float) -> tuple[np.ndarray, np.ndarray, int]:
     gamma = model.gamma
     values, spare = np.zeros(model.n_states), np.empty(model.n_states)
-    next_polish, polish_seconds = 8, 0.0
-    started = time.perf_counter()
+    next_polish, polishes = 8, 0
+    cost = _polish_cost(model)
     for iteration in range(1, MAX_ITERATIONS + 1):
         change = sweep(values, spare)
         values, spare = spare, values
         if change * gamma <= tol * (1 - gamma):
             return values, model.backup(reward, values), iteration
         if iteration >= next_polish:
-            clock = time.perf_counter()
+            polishes += 1
             q = np.where(allowed, model.backup(reward, values), -np.inf)
             exact = evaluate_policy(model, np.argmax(q, axis=1), reward)[:, 0]
             if sweep(exact, spare) <= tol * (1 - gamma):
                 return exact, model.backup(reward, exact), iteration
             values = exact  # V_pi <= V*, and value iteration from it rises monotonically
-            # Keep polishing to about a quarter of the time spent sweeping.
-            now = time.perf_counter()
-            polish_seconds += now - clock
-            per_sweep = (now - started - polish_seconds) / iteration
-            next_polish = iteration + max(8, iteration // 4,
-                                          int(4 * polish_seconds / max(per_sweep, 1e-9)))
+            # Keep polishing to about a quarter of the work spent sweeping (a
+            # schedule of counts, not of clock time, so results are reproducible).
+            next_polish = iteration + max(8, iteration // 4, int(4 * polishes * cost))
     raise TPOError(f"value iteration did not converge in {MAX_ITERATIONS} iterations")
+
+
+def _polish_cost(model: TabularTMDP) -> float:
+    """The work of one exact evaluation in sweeps: pointer jumping does about half
+    a sweep per doubling up to the horizon where gamma^H < 1e-17; a sparse LU is
+    taken as 20 sweeps."""
+    if not model.deterministic or model.gamma == 0:
+        return 20.0
+    horizon = np.log(1e-17) / np.log(model.gamma)
+    return 0.5 * float(np.ceil(np.log2(max(horizon, 2.0))))
 
 
 def penalty(model: TabularTMDP, edges: Sequence[Edge], values: Mapping[str, np.ndarray],
