@@ -46,25 +46,6 @@ def test_infeasible_problem_exits_nonzero_unless_relaxed():
     assert json.loads(out.stdout)["feasible"] is False
 
 
-@pytest.mark.parametrize(
-    ("args", "message"),
-    [
-        (["--dag", "M>A>X"], "unknown objective 'X'"),
-        (["--dag", "M>A>M"], "cycle"),
-        (["--slack", "abc"], "bad --slack 'abc'"),
-        (["--slack", "1,2,3"], "got 3 slack values for 2 edge(s)"),
-        (["--slack", "-1"], "slack must be >= 0"),
-        (["--gamma", "1.5"], "gamma must be a number in [0, 1)"),
-        (["--map", "nowhere"], "no bundled map or file named 'nowhere'"),
-        (["--slip", "2"], "slip must be a probability"),
-    ],
-)
-def test_bad_arguments_give_one_line(args, message, capsys):
-    assert main(["solve", *args]) == 2
-    err = capsys.readouterr().err
-    assert message in err and err.count("\n") == 1
-
-
 def test_plot_writes_a_png_and_refuses_to_overwrite(tmp_path, capsys):
     target = tmp_path / "path.png"
     assert main(["solve", "--slack", "100,0", "--plot", str(target)]) == 0

@@ -127,7 +127,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         if "slack" in given:
             given["slack"] = parse_slack(given["slack"])
         spec = RunSpec.from_settings({**settings, **given})
-        spec.model()  # check map, DAG and slack before creating anything
+        spec.check()  # map, DAG, slack, env and budget, before creating anything
         run_dir = create_run(args.out, spec, force=args.force)
 
     bar = tqdm(total=spec.steps, unit="step", unit_scale=True, disable=args.quiet)

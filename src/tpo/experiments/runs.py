@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from tpo.algo import TPO, TPOConfig
+from tpo.algo import TPO, TPOConfig, Trainer
 from tpo.envs import load_map
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
@@ -101,6 +101,12 @@ class RunSpec:
         fields = {**problem, "dag": self.dag, "slack": list(self.slack), "seed": self.seed,
                   "steps": self.steps, **self.config.to_dict()}
         return "".join(f"{k} = {_toml_value(v)}\n" for k, v in fields.items())
+
+    def check(self) -> None:
+        """Raise on anything training would refuse (map, DAG, slack, env, budget),
+        before a run directory is made."""
+        model = self.model()
+        Trainer(model.env, model.graph, self.config, self.steps)
 
     def model(self) -> TPO:
         """A fresh (untrained) model of this run; on a map, training starts from
