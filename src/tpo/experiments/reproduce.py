@@ -223,7 +223,8 @@ def write_outputs(out: Path, settings: Settings, records: dict[str, dict[str, An
     navmap = load_map(settings.map)
     paths = [np.array(fig3["paths"][i][0]) for i in range(2)]
     labels = [f"slack {'/'.join(f'{v:g}' for v in fig3['slacks'][i])}: "
-              f"{len(paths[i]) - 1} steps" for i in range(2)]
+              + (f"{len(p) - 1} steps to the goal" if tuple(p[-1]) == navmap.goal
+                 else "never reaches the goal") for i, p in enumerate(paths)]
     save_figure(plot_paths(navmap, paths, labels, colors=("tab:blue", "tab:red"),
                            title=f"{navmap.name}: learned M>A>G paths (seed "
                                  f"{fig3['seeds'][0]})"), out / "figure3.png")
@@ -242,7 +243,7 @@ def report(settings: Settings, records: dict[str, dict[str, Any]]) -> str:
              "(mean ± std over seeds) and of LAR's policy for the same DAG and slack. "
              "'match' counts seeds within 5 % or 0.5 of LAR on every objective.", ""]
     directions = ["| panel | objective | learned (slack 0 → max) | LAR | paper | "
-                  "learned = paper |", "|---|---|---|---|---|---|"]
+                  "learned = paper | LAR = paper |", "|---|---|---|---|---|---|---|"]
     for panel in PANELS:
         rec = records[panel.name]
         exact, lar = np.array(rec["exact"]), np.array(rec["lar"])
@@ -262,7 +263,8 @@ def report(settings: Settings, records: dict[str, dict[str, Any]]) -> str:
             exact_dir = direction(lar[0, k], lar[-1, k], scale)
             paper = direction(*PAPER[panel.name][obj], 1.0)
             directions.append(f"| ({panel.name}) {panel.dag} | {obj} | {ours} | {exact_dir} | "
-                              f"{paper} | {'yes' if ours == paper else 'no'} |")
+                              f"{paper} | {'yes' if ours == paper else 'no'} | "
+                              f"{'yes' if exact_dir == paper else 'no'} |")
     lines += ["## Direction of each line", "", *directions, "",
               "The paper's directions are read off its figure source (slack 0 and 100). "
               "'flat' means a change under 1 % of the line's scale (or 0.5).", ""]
