@@ -31,6 +31,7 @@ import numpy as np
 
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
+from tpo.experiments.atomic import write_atomic
 
 COLORS = {"avoid": "red", "monitor": "blue", "goal": "green"}
 SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
@@ -128,9 +129,7 @@ def _run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path,
 
 
 def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps(data))
 
 
 def _single_threaded() -> None:

@@ -19,9 +19,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
-import tempfile
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,6 +32,7 @@ from tpo.algo import TPO, TPOConfig, Trainer
 from tpo.envs import load_map
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
+from tpo.experiments.atomic import write_atomic
 
 RUN_DEFAULTS: dict[str, Any] = {"map": "home", "dag": "M>A>G", "slack": [0.0], "seed": 0,
                                 "steps": 1_000_000, "slip": 0.0, "observation": "factored",
@@ -127,16 +126,6 @@ def _toml_value(value: object) -> str:
     if isinstance(value, list | tuple):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     return repr(value)
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 class MetricsLog:

@@ -9,8 +9,6 @@ slack and gamma.
 
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -26,6 +24,7 @@ from tpo.algo.agent import env_spec, make_env
 from tpo.algo.evaluate import episode_returns
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
+from tpo.experiments.atomic import write_atomic
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import evaluate_policy, solve_lar
 
@@ -115,12 +114,7 @@ def _save_states(path: Path, states: TrainState, done: int) -> None:
     blob = serialization.msgpack_serialize({
         "done": done, "states": serialization.to_state_dict(
             states.replace(key=jax.random.key_data(states.key)))})
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(blob)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_atomic(path, blob)
 
 
 def _load_states(path: Path, template: TrainState) -> tuple[TrainState, int]:
