@@ -263,7 +263,7 @@ class TPO:
         for i, greedy in enumerate((True, False)):
             if self.host:
                 returns = HostRunner(trainer, self.eval_env).monte_carlo(
-                    self.eval_env, actor, episodes, greedy, gamma, seed + i)
+                    actor, episodes, greedy, gamma, seed + i)
             else:
                 returns = monte_carlo(trainer, actor, self.eval_env,
                                       jax.random.key(seed + i), episodes, greedy, gamma)

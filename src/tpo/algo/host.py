@@ -76,7 +76,6 @@ class HostEnv:
                            f"({', '.join(self.objectives)})")
         self.reward_low = np.asarray(reward_space.low, np.float32).reshape(-1)
         self.reward_high = np.asarray(reward_space.high, np.float32).reshape(-1)
-        self.observation_space = probe.observation_space
         self._encode, self.obs_shape = _observation_encoder(probe.observation_space,
                                                             _name(probe))
         space = probe.action_space
@@ -218,11 +217,12 @@ class HostRunner:
             history.append(metrics)
         return state, jax.tree.map(lambda *x: jnp.stack(x), *history)
 
-    def monte_carlo(self, env: HostEnv, actor: dict, episodes: int, greedy: bool,
-                    gamma: float, seed: int) -> dict[str, np.ndarray]:
-        """Returns of ``episodes`` episodes on ``env`` (the same layout as the JAX
-        path's); every copy runs the same number of whole episodes, so short
+    def monte_carlo(self, actor: dict, episodes: int, greedy: bool, gamma: float,
+                    seed: int) -> dict[str, np.ndarray]:
+        """Returns of ``episodes`` episodes on the runner's env (the same layout as
+        the JAX path's); every copy runs the same number of whole episodes, so short
         episodes are not over-represented."""
+        env = self.env
         k, n = len(env.objectives), env.num_envs
         quota = -(-episodes // n)
         found: list[list[tuple]] = [[] for _ in range(n)]
