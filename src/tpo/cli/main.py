@@ -25,12 +25,12 @@ class UsageError(TPOError):
     """A bad command-line argument."""
 
 
-def parse_slack(text: str) -> list[float]:
+def parse_slack(text: str, option: str = "--slack") -> list[float]:
     """``"0"`` or ``"0,100"`` -> floats (the graph checks sign and count)."""
     try:
         return [float(v) for v in text.split(",")]
     except ValueError:
-        raise UsageError(f"bad --slack '{text}': give a number or comma-separated numbers"
+        raise UsageError(f"bad {option} '{text}': give a number or comma-separated numbers"
                          ) from None
 
 
@@ -157,14 +157,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------- reproduce
-def parse_numbers(text: str, name: str, kind: type = float) -> tuple:
-    try:
-        values = tuple(kind(v) for v in text.split(","))
-    except ValueError:
-        raise UsageError(f"bad {name} '{text}': give comma-separated numbers") from None
-    return values
-
-
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -178,7 +170,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         load_map(args.map)
         changes["map"] = args.map
     if args.slacks:
-        slacks = parse_numbers(args.slacks, "--slacks")
+        slacks = tuple(parse_slack(args.slacks, "--slacks"))
         if len(slacks) < 2 or any(b <= a for a, b in pairwise(slacks)) \
                 or slacks[0] < 0:
             raise UsageError("--slacks needs at least two increasing values >= 0")

@@ -33,7 +33,6 @@ from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
 from tpo.experiments.atomic import write_atomic
 
-COLORS = {"avoid": "red", "monitor": "blue", "goal": "green"}
 SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
 
