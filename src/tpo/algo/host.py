@@ -163,13 +163,21 @@ class HostRunner:
         self.trainer, self.env = trainer, env
         continuous = trainer.continuous
 
-        def act(actor: dict, obs: jax.Array, key: jax.Array, greedy: jax.Array):
+        def act(actor: dict, obs: jax.Array, key_data: jax.Array, greedy: jax.Array):
             out, log_std = trainer.actor.apply({"params": actor}, obs)
-            action = jnp.where(greedy, mode(out, continuous),
-                               sample(key, out, log_std, continuous))
-            return action, log_prob(out, log_std, action, continuous)
+            key = jax.random.wrap_key_data(key_data)
+            return jnp.where(greedy, mode(out, continuous),
+                             sample(key, out, log_std, continuous))
 
+        def behaviour_log_prob(actor: dict, obs: jax.Array, action: jax.Array):
+            out, log_std = trainer.actor.apply({"params": actor}, obs)
+            return log_prob(out, log_std, action, continuous)
+
+        # Keys travel as raw key data (NumPy): indexing typed keys on the host costs
+        # an eager JAX dispatch per step; log-probs are computed for the whole
+        # rollout at once, so each step syncs with the device only for the action.
         self._act = jax.jit(act)
+        self._log_prob = jax.jit(behaviour_log_prob)
         self._learn = jax.jit(trainer.learn)
         self._refit = jax.jit(lambda s: trainer.phase_info(s)[2])
 
@@ -182,14 +190,13 @@ class HostRunner:
         for _ in range(num_updates):
             greedy = self._refit(state)
             key, k_roll = jax.random.split(state.key)
-            keys = jax.random.split(k_roll, cfg.num_steps)
+            keys = np.asarray(jax.random.key_data(jax.random.split(k_roll, cfg.num_steps)))
             obs = np.asarray(state.obs)
             ep_ret, ep_len = np.asarray(state.episode_return), np.asarray(state.episode_length)
             done_ret, done_len, done_n = np.zeros(k), 0.0, 0.0
             steps: list[tuple] = []
             for t in range(cfg.num_steps):
-                action, logp = self._act(state.params["actor"], obs, keys[t], greedy)
-                action = np.asarray(action)
+                action = np.asarray(self._act(state.params["actor"], obs, keys[t], greedy))
                 nxt, reward, term, trunc, final = env.step(action)
                 if not np.isfinite(reward).all():
                     env_i, col = np.argwhere(~np.isfinite(reward))[0]
@@ -202,10 +209,10 @@ class HostRunner:
                 done_len += float((ep_len * done).sum())
                 done_n += float(done.sum())
                 ep_ret, ep_len = ep_ret * (1 - done[:, None]), ep_len * (1 - done)
-                steps.append((obs, action, np.asarray(logp), reward, final,
-                              term.astype(np.float32), done))
+                steps.append((obs, action, reward, final, term.astype(np.float32), done))
                 obs = nxt
-            rollout = Rollout(*(jnp.asarray(np.stack(x)) for x in zip(*steps, strict=True)))
+            o, a, r, f, te, d = (jnp.asarray(np.stack(x)) for x in zip(*steps, strict=True))
+            rollout = Rollout(o, a, self._log_prob(state.params["actor"], o, a), r, f, te, d)
             n = max(done_n, 1.0)
             episodes = {"episodes": jnp.float32(done_n),
                         "episode_return": jnp.asarray(done_ret / n, jnp.float32),
@@ -232,7 +239,7 @@ class HostRunner:
         key = jax.random.key(seed)
         while min(len(f) for f in found) < quota:
             key, k_act = jax.random.split(key)
-            action, _ = self._act(actor, obs, k_act, jnp.bool_(greedy))
+            action = self._act(actor, obs, jax.random.key_data(k_act), jnp.bool_(greedy))
             obs, reward, term, trunc, _ = env.step(np.asarray(action))
             r_acc += reward
             d_acc += g_acc[:, None] * reward
