@@ -1,5 +1,7 @@
 """End-to-end training throughput: TPO (3 objectives) vs plain PPO in the same code vs
-a CleanRL-style PyTorch PPO vs Stable-Baselines3 PPO, on the same grid map.
+a CleanRL-style PyTorch PPO vs Stable-Baselines3 PPO, on the same grid map; and TPO's
+host-stepped path (``tpo-host``: the same map as a NumPy Gymnasium env with vector
+rewards; ``tpo-host-gym``: the registered ``tpo/GridNav-home-v0``) vs its JAX path.
 
     pip install -e ".[bench]"          # torch 2.13.0 (CPU) and stable-baselines3
     python benchmarks/bench_ppo.py --envs 16 256 --repeats 3
@@ -94,6 +96,54 @@ class GridEnv(gym.Env):
         term = bool(self.grid.terminal[s])
         trunc = t >= self.grid.max_steps and not term
         return self.grid.obs_table[s], reward, term, trunc, {}
+
+
+class MOGridEnv(GridEnv):
+    """:class:`GridEnv` with the reward vector ``[goal, avoid, monitor]`` and a
+    ``reward_space`` (MO-Gymnasium's convention): what TPO's host path steps."""
+
+    def __init__(self) -> None:
+        from tpo.envs import load_map
+        from tpo.envs.grid import GridNav
+
+        super().__init__()
+        env = GridNav(load_map(MAP), random_start=True)
+        self.objectives = env.objectives
+        self.rewards = env.tabular(0.99).model.rewards.astype(np.float32)
+        self.reward_space = gym.spaces.Box(env.reward_low, env.reward_high, dtype=np.float32)
+
+    def step(self, action):
+        s = int(self.grid.state[0])
+        obs, _, term, trunc, info = super().step(action)
+        return obs, self.rewards[s, action], term, trunc, info
+
+
+def run_host(n_envs: int, updates: int, gym_id: str | None = None) -> dict:
+    """TPO's host-stepped path (``tpo.algo.host``) on :class:`MOGridEnv`, or on the
+    registered Gymnasium id ``gym_id`` (the JAX env stepped one transition per call)."""
+    import jax
+
+    from tpo.algo import TPOConfig, Trainer
+    from tpo.algo.host import HostEnv, HostRunner
+    from tpo.graph import ObjectiveGraph
+
+    make = MOGridEnv if gym_id is None else (lambda: gym.make(gym_id))
+    objectives = ("goal", "avoid", "monitor")
+    env = HostEnv(make, objectives, n_envs)
+    config = TPOConfig(num_envs=n_envs, num_steps=NUM_STEPS)
+    graph = ObjectiveGraph.parse("M>A>G", 0.0, objectives=objectives)
+    trainer = Trainer(env, graph, config, config.batch_size * (2 * updates + 1) * 3)
+    runner, slack = HostRunner(trainer, env), trainer.slack_array()
+    state = trainer.init(jax.random.key(0), obs=env.reset(0))
+    t0 = time.perf_counter()
+    state, _ = runner.run(state, slack, 1)
+    jax.block_until_ready(state)
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    state, _ = runner.run(state, slack, updates)
+    jax.block_until_ready(state)
+    return {"seconds": time.perf_counter() - t0, "steps": updates * config.batch_size,
+            "compile_s": compile_s}
 
 
 # ------------------------------------------------------------------------ JAX
@@ -265,6 +315,8 @@ LEARNERS = {
     "tpo": lambda n, u: run_jax("M>A>G", n, u),
     "ppo": lambda n, u: run_jax("goal", n, u),
     "tpo-x8": lambda n, u: run_jax("M>A>G", n, u, seeds=8),
+    "tpo-host": run_host,
+    "tpo-host-gym": lambda n, u: run_host(n, u, "tpo/GridNav-home-v0"),
     "torch": run_torch,
     "sb3": run_sb3,
     "sb3-vec": lambda n, u: run_sb3(n, u, batched=True),
@@ -292,8 +344,9 @@ def main() -> None:
         result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         print(json.dumps(result))
         return
+    # steps/s (per run), to size the measurements
     guess = {"tpo": 60e3, "ppo": 70e3, "torch": 15e3, "sb3": 4e3, "sb3-vec": 15e3,
-             "tpo-x8": 15e3}  # steps/s (per run), to size the measurements
+             "tpo-x8": 15e3, "tpo-host": 8e3, "tpo-host-gym": 2e3}
     rows = {}
     for n_envs in args.envs:
         for name in args.learners:
@@ -312,7 +365,8 @@ def main() -> None:
         r = {k[0]: v for k, v in rows.items() if k[1] == n_envs}
         ratios = [f"{a}/{b} {r[a] / r[b]:.2f}x" for a, b in
                   (("tpo", "ppo"), ("tpo", "torch"), ("tpo", "sb3"), ("tpo", "sb3-vec"),
-                   ("ppo", "torch"), ("tpo-x8", "sb3"))
+                   ("ppo", "torch"), ("tpo-x8", "sb3"), ("tpo-host", "tpo"),
+                   ("tpo-host-gym", "tpo"))
                   if a in r and b in r]
         print(f"{n_envs:4d} envs: " + ", ".join(ratios))
 

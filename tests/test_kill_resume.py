@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -45,3 +46,56 @@ def test_sigkill_at_a_random_moment_then_resume_gives_the_uninterrupted_result(t
     a, b = TPO.load(whole / "model"), TPO.load(killed / "model")
     assert (whole / "model" / "state.msgpack").read_bytes() == \
         (killed / "model" / "state.msgpack").read_bytes(), (a.num_timesteps, b.num_timesteps)
+
+
+REPRODUCE = ["reproduce", "--map", "small", "--slacks", "0,5", "--seeds", "1", "--steps",
+             "40000", "--workers", "2", "--quiet"]
+
+
+def children(pid: int) -> list[int]:
+    """The pids whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie does not: it has exited unreaped)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigkilled_reproduction_leaves_no_workers_and_resumes_to_the_same_results(tmp_path):
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    assert tpo(*REPRODUCE, "--out", str(whole)).wait() == 0
+
+    proc = tpo(*REPRODUCE, "--out", str(killed))
+    deadline = time.monotonic() + 600
+    while not list((killed / "panels").glob("*.json")):  # a panel done, others running
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.05)
+    time.sleep(random.Random(os.getpid()).uniform(0.0, 3.0))
+    workers = children(proc.pid)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (killed / "results.csv").exists(), "the reproduction finished before the kill"
+    deadline = time.monotonic() + 10
+    while any(alive(w) for w in workers):  # the workers die with their parent
+        assert time.monotonic() < deadline, [w for w in workers if alive(w)]
+        time.sleep(0.1)
+
+    resumed = tpo(*REPRODUCE, "--out", str(killed))
+    assert resumed.wait() == 0, resumed.stderr.read()
+    assert (killed / "results.csv").read_text() == (whole / "results.csv").read_text()
+    assert (killed / "report.md").read_text() == (whole / "report.md").read_text()

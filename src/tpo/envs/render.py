@@ -7,6 +7,7 @@ pyplot, so drawing touches no global backend state.
 
 from __future__ import annotations
 
+import io
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
+from tpo.atomic import write_atomic
 from tpo.envs.maps import NavMap
 
 AVOID_COLOR = "#f4a6a6"
@@ -68,10 +70,13 @@ def plot_paths(navmap: NavMap, paths: Sequence[np.ndarray], labels: Sequence[str
 
 
 def save_figure(fig: Figure, path: str | Path) -> Path:
-    """Save ``fig`` (PNG, PDF or SVG by suffix), creating parent folders."""
+    """Save ``fig`` (PNG, PDF or SVG by suffix), creating parent folders; the file
+    is written whole or not at all."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format=path.suffix.lstrip(".").lower() or "png", dpi=150)
+    write_atomic(path, buffer.getvalue())
     return path
 
 

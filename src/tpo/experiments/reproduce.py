@@ -17,23 +17,28 @@ panel in progress resumes from its checkpoint). Output::
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
+import signal
+import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from multiprocessing import get_context
 from pathlib import Path
+from queue import Empty
 from typing import Any
 
 import numpy as np
 
+from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
-from tpo.experiments.atomic import write_atomic
 
 SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
 
 
 @dataclass(frozen=True)
@@ -95,8 +100,8 @@ def jobs(settings: Settings) -> list[tuple[Panel, list[float]]]:
     return [*jobs, (FIGURE3, [0.0, 100.0])]
 
 
-def _run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path,
-               queue: Any = None) -> dict[str, Any]:
+def _run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path
+               ) -> dict[str, Any]:
     """Train and evaluate one panel (in a worker process); write its JSON."""
     from tpo.algo import TPOConfig
     from tpo.envs.grid import GridNav
@@ -109,8 +114,8 @@ def _run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path,
     runs = len(slacks) * len(settings.seeds)
 
     def progress(done: int, total: int) -> None:
-        if queue is not None:
-            queue.put((panel.name, done / total))
+        if _progress_queue is not None:
+            _progress_queue.put((panel.name, done / total))
 
     t0 = time.monotonic()
     result = run_sweep(env, panel.dag, slacks, settings.seeds, TPOConfig(), settings.steps,
@@ -131,8 +136,20 @@ def _write_json(path: Path, data: Any) -> None:
     write_atomic(path, json.dumps(data))
 
 
-def _single_threaded() -> None:
+_progress_queue: Any = None  # a worker's queue of (panel, fraction) for the parent
+
+
+def _init_worker(queue: Any, parent: int) -> None:
+    """A panel worker: one XLA thread; progress to ``queue``; on Linux, killed with
+    its parent (a SIGKILLed ``tpo reproduce`` must not leave workers writing into
+    the directory that its restart resumes)."""
+    global _progress_queue
+    _progress_queue = queue
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_THREAD}".strip()
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        if os.getppid() != parent:  # the parent died before prctl took effect
+            os._exit(1)
 
 
 Progress = Callable[[dict[str, float]], None]
@@ -169,17 +186,19 @@ def reproduce(out: str | Path, settings: Settings = Settings(),
     fractions = {p.name: 1.0 if p.name in records else 0.0 for p, _ in jobs(settings)}
     if todo:
         ctx = get_context("spawn")
-        with ctx.Manager() as manager, ProcessPoolExecutor(
-                max_workers=min(settings.workers, len(todo)), mp_context=ctx,
-                initializer=_single_threaded) as pool:
-            queue = manager.Queue()
-            futures = [pool.submit(_run_panel, p, xs, settings, out, queue) for p, xs in todo]
+        queue = ctx.Queue()
+        with ProcessPoolExecutor(max_workers=min(settings.workers, len(todo)), mp_context=ctx,
+                                 initializer=_init_worker, initargs=(queue, os.getpid())) as pool:
+            futures = [pool.submit(_run_panel, p, xs, settings, out) for p, xs in todo]
             pending = set(futures)
             while pending:
-                changed = not queue.empty()
-                while not queue.empty():
-                    name, fraction = queue.get()
-                    fractions[name] = fraction
+                changed = False
+                while True:
+                    try:
+                        name, fraction = queue.get_nowait()
+                    except Empty:
+                        break
+                    fractions[name], changed = fraction, True
                 if progress is not None and changed:
                     progress(dict(fractions))
                 finished = [f for f in pending if f.done()]
@@ -192,6 +211,7 @@ def reproduce(out: str | Path, settings: Settings = Settings(),
                     wait(pending, timeout=0.5)
         if progress is not None:
             progress(dict(fractions))
+    records = {p.name: records[p.name] for p, _ in jobs(settings)}  # not finishing order
     write_outputs(out, settings, records)
     return records
 
@@ -212,7 +232,7 @@ def write_outputs(out: Path, settings: Settings, records: dict[str, dict[str, An
                         "/".join(f"{v:g}" for v in rec["slacks"][i]), seed, obj,
                         f'{rec["exact"][i][j][k]:.6f}', f'{rec["mc"][i][j][k]:.6f}',
                         f'{rec["lar"][i][k]:.6f}', rec["feasible"][i], rec["matches"][i][j])))
-    (out / "results.csv").write_text("\n".join(rows) + "\n")
+    write_atomic(out / "results.csv", "\n".join(rows) + "\n")
     summary = {"settings": asdict(settings), "panels": {
         n: {k: v for k, v in r.items() if k != "paths"} for n, r in records.items()}}
     _write_json(out / "results.json", summary)
@@ -226,7 +246,7 @@ def write_outputs(out: Path, settings: Settings, records: dict[str, dict[str, An
     save_figure(plot_paths(navmap, paths, labels, colors=("tab:blue", "tab:red"),
                            title=f"{navmap.name}: learned M>A>G paths (seed "
                                  f"{fig3['seeds'][0]})"), out / "figure3.png")
-    (out / "report.md").write_text(report(settings, records))
+    write_atomic(out / "report.md", report(settings, records))
 
 
 def _mean_std(values: np.ndarray) -> str:

@@ -29,10 +29,10 @@ from typing import Any
 import numpy as np
 
 from tpo.algo import TPO, TPOConfig, Trainer
+from tpo.atomic import write_atomic
 from tpo.envs import load_map
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
-from tpo.experiments.atomic import write_atomic
 
 RUN_DEFAULTS: dict[str, Any] = {"map": "home", "dag": "M>A>G", "slack": [0.0], "seed": 0,
                                 "steps": 1_000_000, "slip": 0.0, "observation": "factored",

@@ -22,9 +22,9 @@ from flax import serialization
 from tpo.algo import TPOConfig, Trainer, TrainState
 from tpo.algo.agent import env_spec, make_env
 from tpo.algo.evaluate import episode_returns
+from tpo.atomic import write_atomic
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
-from tpo.experiments.atomic import write_atomic
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import evaluate_policy, solve_lar
 

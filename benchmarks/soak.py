@@ -1,0 +1,101 @@
+"""Soak: memory of one long `tpo train` run, sampled over time.
+
+    python benchmarks/soak.py --steps 10000000 --csv soak.csv
+    python benchmarks/soak.py --steps 1000000 -- --env mo-gymnasium:deep-sea-treasure-v0 \\
+        --objectives treasure,time --dag "treasure>time"
+
+Runs ``tpo train`` (run directory, metrics, TensorBoard, checkpoints: the whole user
+path) in a subprocess into a temporary directory and samples its resident set size
+(``VmRSS`` of ``/proc/PID/status``, Linux) every ``--interval`` seconds, with the env
+steps done so far (from the run's ``metrics.csv``). Prints RSS at every tenth of the
+run and the growth after warm-up (from 20 % of the steps to the end), in MB per
+million steps. Arguments after ``--`` replace the default ``--map home --dag M>A>G``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return None
+
+
+def steps_done(run_dir: Path) -> int:
+    """The env steps of the last row of ``metrics.csv`` (0 before the first)."""
+    try:
+        with open(run_dir / "metrics.csv") as f:
+            rows = f.read().splitlines()
+    except OSError:
+        return 0
+    if len(rows) < 2:
+        return 0
+    header, last = rows[0].split(","), rows[-1].split(",")
+    try:
+        return int(float(last[header.index("timesteps")]))
+    except (ValueError, IndexError):
+        return 0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=10_000_000)
+    parser.add_argument("--interval", type=float, default=1.0, help="seconds between samples")
+    parser.add_argument("--csv", help="write the samples (seconds, steps, rss_mb) here")
+    parser.add_argument("train_args", nargs="*", help="arguments for tpo train (after --)")
+    args = parser.parse_args()
+    train_args = args.train_args or ["--map", "home", "--dag", "M>A>G"]
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run_dir = Path(tmp) / "soak"
+        cmd = [sys.executable, "-c", "import sys; from tpo.cli.main import main; "
+               "sys.exit(main())", "train", *train_args, "--steps", str(args.steps),
+               "--out", str(run_dir), "--quiet", "--episodes", "10"]
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+        samples: list[tuple[float, int, float]] = []
+        while proc.poll() is None:
+            rss = rss_mb(proc.pid)
+            if rss is not None:
+                samples.append((time.perf_counter() - t0, steps_done(run_dir), rss))
+            time.sleep(args.interval)
+        if proc.returncode:
+            sys.exit(f"tpo train failed with exit code {proc.returncode}")
+    wall = time.perf_counter() - t0
+
+    if args.csv:
+        with open(args.csv, "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(["seconds", "steps", "rss_mb"])
+            writer.writerows((f"{t:.1f}", n, f"{r:.1f}") for t, n, r in samples)
+    print(f"{args.steps} steps in {wall:.0f} s ({args.steps / wall / 1e3:.1f} k steps/s "
+          f"including compilation and evaluation), {len(samples)} samples")
+    for tenth in range(1, 11):
+        at = [r for _, n, r in samples if n <= args.steps * tenth / 10]
+        if at:
+            print(f"  {tenth * 10:3d} % of steps: RSS {at[-1]:7.1f} MB")
+    peak = max(r for _, _, r in samples)
+    warm = [(n, r) for _, n, r in samples if args.steps * 0.2 <= n < args.steps]
+    if len(warm) >= 2:
+        (n0, r0), (n1, r1) = warm[0], warm[-1]
+        growth = (r1 - r0) / max(n1 - n0, 1) * 1e6
+        print(f"peak RSS {peak:.1f} MB; after warm-up {r0:.1f} -> {r1:.1f} MB "
+              f"({growth:+.2f} MB per million steps)")
+    else:
+        print(f"peak RSS {peak:.1f} MB (too few samples after warm-up for a slope)")
+
+
+if __name__ == "__main__":
+    main()
