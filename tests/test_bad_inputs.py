@@ -27,6 +27,7 @@ FILES = {
     "fractions.toml": "phase_fractions = [1.0]\n",
     "badconfig.toml": "num_envs = [\n",
     "slackconf.toml": 'slack = "lots"\n',
+    "tiny.toml": "num_envs = 2\nnum_steps = 8\nnum_minibatches = 1\nupdate_epochs = 1\n",
 }
 
 CASES = [
@@ -91,6 +92,15 @@ CASES = [
       "{tmp}/r"], "a Gymnasium env is named PACKAGE:ENV_ID"),
     (["train", "--env", "mo-gymnasium:no-such-env-v0", "--objectives", "a", "--dag", "a",
       "--out", "{tmp}/r"], "unknown env id 'no-such-env-v0'"),
+    *[(["train", "--env", f"badenvs:{name}-v0", "--objectives", "a,b", "--dag", "a>b",
+        "--steps", "64", "--config", "{tmp}/tiny.toml", "--out", "{tmp}/r", "--quiet"], message)
+      for name, message in (
+          ("NanReward", "non-finite reward nan for objective 'b' at update 1, step 3 of its "
+                        "rollout, env 0"),
+          ("WideReward", "the env returned a reward of shape (3,) for 2 objectives"),
+          ("GrowingObservation", "observation shape changed from (2,) to (3,)"),
+          ("DictObservation", "TPO supports Box and Discrete observations"),
+          ("MultiDiscreteAction", "TPO supports Discrete and 1-D Box actions"))],
 ]
 
 

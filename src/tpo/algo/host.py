@@ -202,7 +202,8 @@ class HostRunner:
                     env_i, col = np.argwhere(~np.isfinite(reward))[0]
                     raise EnvError(f"non-finite reward {reward[env_i, col]} for objective "
                                    f"'{env.objectives[col]}' at update "
-                                   f"{int(state.update)}, step {t}, env {env_i}")
+                                   f"{int(state.update) + 1}, step {t + 1} of its rollout, "
+                                   f"env {env_i}")
                 done = (term | trunc).astype(np.float32)
                 ep_ret, ep_len = ep_ret + reward, ep_len + 1
                 done_ret += (ep_ret * done[:, None]).sum(0)
