@@ -8,8 +8,9 @@ Runs ``tpo train`` (run directory, metrics, TensorBoard, checkpoints: the whole 
 path) in a subprocess into a temporary directory and samples its resident set size
 (``VmRSS`` of ``/proc/PID/status``, Linux) every ``--interval`` seconds, with the env
 steps done so far (from the run's ``metrics.csv``). Prints RSS at every tenth of the
-run and the growth after warm-up (from 20 % of the steps to the end), in MB per
-million steps. Arguments after ``--`` replace the default ``--map home --dag M>A>G``.
+run, the peaks of training and of the final saving and evaluation, and the growth
+during training after warm-up (from 20 % of the steps on), in MB per million steps.
+Arguments after ``--`` replace the default ``--map home --dag M>A>G``.
 """
 
 from __future__ import annotations
@@ -86,15 +87,16 @@ def main() -> None:
         at = [r for _, n, r in samples if n <= args.steps * tenth / 10]
         if at:
             print(f"  {tenth * 10:3d} % of steps: RSS {at[-1]:7.1f} MB")
-    peak = max(r for _, _, r in samples)
-    warm = [(n, r) for _, n, r in samples if args.steps * 0.2 <= n < args.steps]
+    last = max(n for _, n, _ in samples)
+    training = [(n, r) for _, n, r in samples if n < last]  # then saving and evaluation
+    warm = [(n, r) for n, r in training if n >= args.steps * 0.2]
+    print(f"peak RSS {max(r for _, _, r in samples):.1f} MB; during training "
+          f"{max(r for _, r in training):.1f} MB; saving and evaluation "
+          f"{max(r for _, n, r in samples if n == last):.1f} MB")
     if len(warm) >= 2:
         (n0, r0), (n1, r1) = warm[0], warm[-1]
-        growth = (r1 - r0) / max(n1 - n0, 1) * 1e6
-        print(f"peak RSS {peak:.1f} MB; after warm-up {r0:.1f} -> {r1:.1f} MB "
-              f"({growth:+.2f} MB per million steps)")
-    else:
-        print(f"peak RSS {peak:.1f} MB (too few samples after warm-up for a slope)")
+        print(f"training after warm-up: {r0:.1f} MB at {n0} steps -> {r1:.1f} MB at {n1} "
+              f"steps ({(r1 - r0) / (n1 - n0) * 1e6:+.2f} MB per million steps)")
 
 
 if __name__ == "__main__":

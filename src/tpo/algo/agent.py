@@ -92,6 +92,26 @@ def _host_env(env: str | gym.Env | EnvFactory, objectives: Sequence[str],
                    env_id=env if isinstance(env, str) else None)
 
 
+ChunkRunner = Callable[[TrainState, jax.Array, int, int], tuple[TrainState, dict]]
+
+
+def _chunk_runner(trainer: Trainer) -> ChunkRunner:
+    """``run(state, slack, n, length)``: ``n`` updates by one jitted program per
+    ``length`` (so the last, shorter chunk compiles nothing new); metrics of ``n``."""
+    chunk = jax.jit(trainer.run_chunk, static_argnums=3)
+
+    def run(state: TrainState, slack: jax.Array, n: int, length: int):
+        state, rows = chunk(state, slack, jnp.int32(n), length)
+        return state, jax.tree.map(lambda x: x[:n], rows)
+
+    return run
+
+
+def _host_runner(trainer: Trainer, env: HostEnv) -> ChunkRunner:
+    runner = HostRunner(trainer, env)
+    return lambda state, slack, n, length: runner.run(state, slack, n)
+
+
 class TPO:
     """Topological policy optimization.
 
@@ -175,13 +195,12 @@ class TPO:
                                   episode_return=jnp.zeros((e, k)), episode_length=jnp.zeros(e))
             self._fresh_env = False
         if self._run is None:
-            self._run = (HostRunner(trainer, self.env).run if self.host
-                         else jax.jit(trainer.run, static_argnums=2))
+            self._run = _host_runner(trainer, self.env) if self.host else _chunk_runner(trainer)
         slack = trainer.slack_array()
         done = int(state.update)
         while done < trainer.num_updates:
             n = min(chunk_updates - done % chunk_updates, trainer.num_updates - done)
-            new_state, metrics = self._run(state, slack, n)
+            new_state, metrics = self._run(state, slack, n, chunk_updates)
             metrics = jax.tree.map(np.asarray, metrics)
             self._check_finite(new_state, metrics, done)
             state, done = new_state, done + n

@@ -343,8 +343,23 @@ class Trainer:
     # ------------------------------------------------------------------- run
     def run(self, state: TrainState, slack: jax.Array, num_updates: int
             ) -> tuple[TrainState, dict]:
-        """``num_updates`` updates from ``state`` (one ``lax.scan``; jit or vmap it)."""
-        return jax.lax.scan(lambda s, _: self.update(s, slack), state, None, length=num_updates)
+        """``num_updates`` updates from ``state`` with their metrics (jit or vmap it)."""
+        return self.run_chunk(state, slack, num_updates, num_updates)
+
+    def run_chunk(self, state: TrainState, slack: jax.Array, num_updates: jax.Array,
+                  length: int) -> tuple[TrainState, dict]:
+        """``num_updates`` updates (traced, at most ``length``); metrics in ``length``
+        rows of which the first ``num_updates`` are filled. One compiled program
+        serves every chunk of a run, the short last one too."""
+        _, shapes = jax.eval_shape(self.update, state, slack)
+        rows = jax.tree.map(lambda x: jnp.zeros((length, *x.shape), x.dtype), shapes)
+
+        def body(i, carry):
+            state, rows = carry
+            state, metrics = self.update(state, slack)
+            return state, jax.tree.map(lambda r, m: r.at[i].set(m), rows, metrics)
+
+        return jax.lax.fori_loop(0, num_updates, body, (state, rows))
 
     def slack_array(self) -> jax.Array:
         """The graph's slack as the ``[n_edges]`` vector :meth:`run` takes."""

@@ -88,18 +88,16 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
     per_seed = [trainer.init(jax.random.key(s)) for s in seeds]  # outside vmap: DESIGN §6
     states = jax.tree.map(lambda *x: jnp.stack(x), *per_seed)
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(slack_arr), *x.shape)), states)
-    compiled: dict[int, Callable] = {}
+    over_seeds = jax.vmap(lambda st, sl, n: trainer.run_chunk(st, sl, n, chunk_updates)[0],
+                          in_axes=(0, None, None))
+    chunk = jax.jit(jax.vmap(over_seeds, in_axes=(0, 0, None)))  # one program, every chunk
     done = 0
     if checkpoint is not None and checkpoint.exists():
         states, done = _load_states(checkpoint, states)
     saved_at = time.monotonic()
     while done < trainer.num_updates:
         n = min(chunk_updates, trainer.num_updates - done)
-        if n not in compiled:
-            over_seeds = jax.vmap(lambda st, sl, n=n: trainer.run(st, sl, n)[0],
-                                  in_axes=(0, None))
-            compiled[n] = jax.jit(jax.vmap(over_seeds))
-        states = jax.block_until_ready(compiled[n](states, jnp.asarray(slack_arr)))
+        states = jax.block_until_ready(chunk(states, jnp.asarray(slack_arr), jnp.int32(n)))
         done += n
         if checkpoint is not None and time.monotonic() - saved_at > checkpoint_seconds:
             _save_states(checkpoint, states, done)
