@@ -123,3 +123,22 @@ def test_cli_trains_a_gymnasium_env_into_a_run_directory(tmp_path, capsys):
     assert main(["train", "--env", "mo-gymnasium:deep-sea-treasure-v0", "--dag", "treasure",
                  "--out", str(tmp_path / "x")]) == 2
     assert "name the reward components of env" in capsys.readouterr().err
+
+
+def test_a_sync_vector_env_is_stepped_copy_by_copy_and_sets_num_envs():
+    from mo_gymnasium.wrappers.vector import MOSyncVectorEnv
+
+    envs = MOSyncVectorEnv([make_line() for _ in range(2)])
+    model = TPO(envs, "left>reach", objectives=["reach", "left"], config=SMALL)
+    assert model.config.num_envs == 2 and model.env.envs == list(envs.envs)
+    model.learn(model.config.batch_size * 2)
+    assert model.finished and model.num_timesteps == 2 * 2 * SMALL.num_steps
+
+
+def test_a_vector_env_whose_copies_are_out_of_reach_is_refused():
+    envs = gym.vector.AsyncVectorEnv([make_line() for _ in range(2)])
+    try:
+        with pytest.raises(TPOError, match="takes a SyncVectorEnv"):
+            TPO(envs, "left>reach", objectives=["reach", "left"], config=SMALL)
+    finally:
+        envs.close()

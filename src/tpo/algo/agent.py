@@ -12,6 +12,7 @@ both acts and resumes training exactly where it stopped (:meth:`TPO.resume`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -80,8 +81,17 @@ def make_env(spec: dict[str, Any], *, evaluation: bool = False) -> GridNav | Con
     raise TPOError(f"unknown environment kind '{kind}'")
 
 
-def _host_env(env: str | gym.Env | EnvFactory, objectives: Sequence[str],
-              num_envs: int) -> HostEnv:
+def _host_env(env: str | gym.Env | gym.vector.VectorEnv | EnvFactory,
+              objectives: Sequence[str], num_envs: int) -> HostEnv:
+    if isinstance(env, gym.vector.VectorEnv):
+        copies, makers = getattr(env, "envs", None), getattr(env, "env_fns", None)
+        if not copies or not makers:
+            raise TPOError(f"{type(env).__name__}: TPO steps a vector env's copies itself, "
+                           "so it takes a SyncVectorEnv (e.g. MO-Gymnasium's "
+                           "MOSyncVectorEnv); or pass the env id or a factory")
+        spec = copies[0].spec
+        return HostEnv(makers[0], objectives, len(copies),
+                       env_id=None if spec is None else spec.id, envs=copies)
     if isinstance(env, gym.Env):
         if env.spec is None:
             raise TPOError("a Gymnasium env object needs a spec (make it with gym.make) "
@@ -120,7 +130,9 @@ class TPO:
             bundled map name or TOML path (a grid with random starts), or a
             Gymnasium env with vector rewards, stepped on the host: an id
             ``"PACKAGE:ENV_ID"`` (``"mo-gymnasium:deep-sea-treasure-v0"``), a
-            ``gymnasium.Env`` made by ``gym.make``, or a factory of envs.
+            ``gymnasium.Env`` made by ``gym.make``, a factory of envs, or a
+            ``SyncVectorEnv`` such as MO-Gymnasium's ``MOSyncVectorEnv`` (its
+            copies are stepped, and their number replaces ``config.num_envs``).
         graph: an :class:`ObjectiveGraph` or a spec string such as ``"M>A>G"``
             (a single name, e.g. ``"goal"``, is plain PPO).
         slack: one slack or one per edge (ignored when ``graph`` is a graph).
@@ -129,18 +141,21 @@ class TPO:
         objectives: names of a Gymnasium env's reward components, in order.
     """
 
-    def __init__(self, env: GridNav | ContinuousNav | str | gym.Env | EnvFactory,
+    def __init__(self, env: GridNav | ContinuousNav | str | gym.Env | gym.vector.VectorEnv
+                 | EnvFactory,
                  graph: ObjectiveGraph | str, slack: float | list[float] = 0.0,
                  config: TPOConfig | None = None, seed: int = 0,
                  objectives: Sequence[str] | None = None) -> None:
         self.config = config or TPOConfig()
-        host = isinstance(env, gym.Env) or callable(env) or (
+        host = isinstance(env, gym.Env | gym.vector.VectorEnv) or callable(env) or (
             isinstance(env, str) and ":" in env and not Path(env).exists())
         if host:
             if objectives is None:
                 raise TPOError("name the Gymnasium env's reward components in order: "
                                "objectives=[...]")
             env = _host_env(env, objectives, self.config.num_envs)
+            if env.num_envs != self.config.num_envs:  # a vector env's copies decide
+                self.config = dataclasses.replace(self.config, num_envs=env.num_envs)
         elif isinstance(env, str | Path):
             try:
                 navmap = load_map(env)

@@ -1,7 +1,7 @@
 """TPO and plain PPO on any Gymnasium / MO-Gymnasium environment with vector rewards.
 
-The environment is stepped on the host by a Gymnasium vector env; choosing
-actions is jitted, and the update is the JAX path's own :meth:`Trainer.learn`:
+The environment's copies are stepped on the host in turn; choosing actions is
+jitted, and the update is the JAX path's own :meth:`Trainer.learn`:
 one implementation of the algorithm, two sources of rollouts. The reward
 vector's components are named by the user (``objectives``), in order.
 
@@ -54,15 +54,16 @@ def env_factory(env: str | EnvFactory, **kwargs: Any) -> EnvFactory:
 
 
 class HostEnv:
-    """``num_envs`` copies of a Gymnasium env with vector rewards, stepped in turn
-    (auto-reset in the same step, the true final observation kept), described
-    the way :class:`Trainer` expects an env. (Gymnasium's own vector envs assume
-    scalar rewards.)"""
+    """``num_envs`` copies of a Gymnasium env with vector rewards (made by ``make``,
+    or the given ``envs``), stepped in turn (auto-reset in the same step, the true
+    final observation kept), described the way :class:`Trainer` expects an env.
+    (Gymnasium's own vector envs assume scalar rewards, and MO-Gymnasium's reset
+    a step late.)"""
 
     def __init__(self, make: EnvFactory, objectives: Sequence[str], num_envs: int,
-                 env_id: str | None = None) -> None:
+                 env_id: str | None = None, envs: Sequence[gym.Env] | None = None) -> None:
         self.make, self.env_id = make, env_id
-        probe = make()
+        probe = envs[0] if envs else make()
         reward_space = getattr(probe.unwrapped, "reward_space", None)
         self.objectives = tuple(objectives)
         if reward_space is None:
@@ -88,8 +89,8 @@ class HostEnv:
         else:
             raise EnvError(f"{_name(probe)} has action space {space}: TPO supports "
                            "Discrete and 1-D Box actions")
-        self.envs = [probe, *(make() for _ in range(num_envs - 1))]
-        self.num_envs = num_envs
+        self.envs = list(envs) if envs else [probe, *(make() for _ in range(num_envs - 1))]
+        self.num_envs = len(self.envs)
 
     def copy(self, num_envs: int) -> HostEnv:
         """Another set of ``num_envs`` copies of the same env."""
