@@ -50,7 +50,9 @@ def env_factory(env: str | EnvFactory, **kwargs: Any) -> EnvFactory:
         gym.spec(env_id)
     except gym.error.Error as err:
         raise EnvError(f"unknown env id '{env_id}': {err}") from None
-    return lambda: gym.make(env_id, **kwargs)
+    # Gymnasium's passive env checker assumes scalar rewards and warns on every
+    # vector-reward env; TPO checks what it needs itself (HostEnv).
+    return lambda: gym.make(env_id, disable_env_checker=True, **kwargs)
 
 
 class HostEnv:
