@@ -95,10 +95,11 @@ CASES = [
     *[(["train", "--env", f"badenvs:{name}-v0", "--objectives", "a,b", "--dag", "a>b",
         "--steps", "64", "--config", "{tmp}/tiny.toml", "--out", "{tmp}/r", "--quiet"], message)
       for name, message in (
-          ("NanReward", "non-finite reward nan for objective 'b' at update 1, step 3 of its "
-                        "rollout, env 0"),
-          ("WideReward", "the env returned a reward of shape (3,) for 2 objectives"),
-          ("GrowingObservation", "observation shape changed from (2,) to (3,)"),
+          ("NanReward", "NanReward-v0 returned a non-finite reward nan for objective 'b' "
+                        "at update 1, step 3 of its rollout, in copy 0"),
+          ("WideReward", "WideReward-v0 returned a reward of shape (3,) for 2 objectives"),
+          ("GrowingObservation", "GrowingObservation-v0's observation shape changed from "
+                                 "(2,) to (3,)"),
           ("DictObservation", "TPO supports Box and Discrete observations"),
           ("MultiDiscreteAction", "TPO supports Discrete and 1-D Box actions"))],
 ]

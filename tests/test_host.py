@@ -72,8 +72,8 @@ def test_objectives_must_be_named():
 def test_non_finite_reward_stops_training_naming_step_and_objective():
     nan_at_3 = make_line(reward_fn=lambda t, r: np.array([r[0], np.nan]) if t == 3 else r)
     model = TPO(nan_at_3, "left>reach", objectives=["reach", "left"], config=SMALL)
-    with pytest.raises(EnvError, match=r"non-finite reward nan for objective 'left' at "
-                                       r"update 1, step 3 of its rollout"):
+    with pytest.raises(EnvError, match=r"Line returned a non-finite reward nan for "
+                                       r"objective 'left' at update 1, step 3 of its rollout"):
         model.learn(SMALL.batch_size * 2)
 
 

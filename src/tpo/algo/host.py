@@ -12,6 +12,7 @@ Actions: ``Discrete`` or ``Box`` (Gaussian samples clipped to the bounds).
 from __future__ import annotations
 
 import importlib
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -64,23 +65,25 @@ class HostEnv:
 
     def __init__(self, make: EnvFactory, objectives: Sequence[str], num_envs: int,
                  env_id: str | None = None, envs: Sequence[gym.Env] | None = None) -> None:
-        self.make, self.env_id = make, env_id
+        self.make, self.env_id = _quiet(make), env_id
+        make = self.make
         probe = envs[0] if envs else make()
+        self.name = _name(probe)
         reward_space = getattr(probe.unwrapped, "reward_space", None)
         self.objectives = tuple(objectives)
         if reward_space is None:
-            raise EnvError(f"{_name(probe)} has a scalar reward (no reward_space): TPO "
+            raise EnvError(f"{self.name} has a scalar reward (no reward_space): TPO "
                            "needs a reward vector, one component per objective "
                            "(MO-Gymnasium's convention)")
         width = int(np.prod(reward_space.shape))
         if width != len(self.objectives):
-            raise EnvError(f"{_name(probe)} returns {width} reward components but "
+            raise EnvError(f"{self.name} returns {width} reward components but "
                            f"{len(self.objectives)} objectives are named "
                            f"({', '.join(self.objectives)})")
         self.reward_low = np.asarray(reward_space.low, np.float32).reshape(-1)
         self.reward_high = np.asarray(reward_space.high, np.float32).reshape(-1)
         self._encode, self.obs_shape = _observation_encoder(probe.observation_space,
-                                                            _name(probe))
+                                                            self.name)
         space = probe.action_space
         if isinstance(space, gym.spaces.Discrete):
             self.num_actions, self.action_dim = int(space.n), None
@@ -89,7 +92,7 @@ class HostEnv:
             self.num_actions, self.action_dim = None, int(space.shape[0])
             self._low, self._high = space.low, space.high
         else:
-            raise EnvError(f"{_name(probe)} has action space {space}: TPO supports "
+            raise EnvError(f"{self.name} has action space {space}: TPO supports "
                            "Discrete and 1-D Box actions")
         self.envs = list(envs) if envs else [probe, *(make() for _ in range(num_envs - 1))]
         self.num_envs = len(self.envs)
@@ -121,8 +124,8 @@ class HostEnv:
             o, r, term[i], trunc[i], _ = env.step(action[i])
             r = np.asarray(r, np.float32).reshape(-1)
             if r.shape != (k,):
-                raise EnvError(f"the env returned a reward of shape {np.shape(r)} for "
-                               f"{k} objectives")
+                raise EnvError(f"{self.name} returned a reward of shape {np.shape(r)} "
+                               f"for {k} objectives")
             reward[i] = r
             final.append(o)
             if term[i] or trunc[i]:
@@ -134,13 +137,24 @@ class HostEnv:
         encoded = [self._encode(o) for o in obs]
         for e in encoded:
             if e.shape != self.obs_shape:
-                raise EnvError(f"observation shape changed from {self.obs_shape} to "
-                               f"{e.shape}")
+                raise EnvError(f"{self.name}'s observation shape changed from "
+                               f"{self.obs_shape} to {e.shape}")
         return np.stack(encoded)
 
     def close(self) -> None:
         for env in self.envs:
             env.close()
+
+
+def _quiet(make: EnvFactory) -> EnvFactory:
+    """``make`` without Gymnasium's warning that a float64 Box bound was cast to
+    float32 (MO-Gymnasium's envs declare their reward spaces so: harmless noise
+    on every copy)."""
+    def quiet_make() -> gym.Env:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*precision lowered by casting")
+            return make()
+    return quiet_make
 
 
 def _name(env: gym.Env) -> str:
@@ -203,10 +217,11 @@ class HostRunner:
                 nxt, reward, term, trunc, final = env.step(action)
                 if not np.isfinite(reward).all():
                     env_i, col = np.argwhere(~np.isfinite(reward))[0]
-                    raise EnvError(f"non-finite reward {reward[env_i, col]} for objective "
+                    raise EnvError(f"{env.name} returned a non-finite reward "
+                                   f"{reward[env_i, col]} for objective "
                                    f"'{env.objectives[col]}' at update "
                                    f"{int(state.update) + 1}, step {t + 1} of its rollout, "
-                                   f"env {env_i}")
+                                   f"in copy {env_i}")
                 done = (term | trunc).astype(np.float32)
                 ep_ret, ep_len = ep_ret + reward, ep_len + 1
                 done_ret += (ep_ret * done[:, None]).sum(0)
