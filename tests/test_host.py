@@ -1,6 +1,8 @@
 """TPO on Gymnasium / MO-Gymnasium envs stepped on the host (issue 6)."""
 
 import json
+import os
+import stat
 
 import gymnasium as gym
 import numpy as np
@@ -8,6 +10,7 @@ import pytest
 
 from tpo.algo import TPO, TPOConfig
 from tpo.algo.host import EnvError, HostEnv
+from tpo.atomic import UMASK
 from tpo.errors import TPOError
 
 SMALL = TPOConfig(num_envs=4, num_steps=16)
@@ -142,3 +145,20 @@ def test_a_vector_env_whose_copies_are_out_of_reach_is_refused():
             TPO(envs, "left>reach", objectives=["reach", "left"], config=SMALL)
     finally:
         envs.close()
+
+
+def test_models_of_a_made_env_or_a_vector_env_save_and_load_by_registered_name(tmp_path):
+    from mo_gymnasium.wrappers.vector import MOSyncVectorEnv
+
+    made = gym.make("deep-sea-treasure-v0")
+    vector = MOSyncVectorEnv([lambda: gym.make("deep-sea-treasure-v0") for _ in range(2)])
+    for i, env in enumerate((made, vector)):
+        model = TPO(env, "treasure>time", objectives=["treasure", "time"], config=SMALL)
+        model.learn(SMALL.batch_size * 2)
+        path = model.save(tmp_path / f"m{i}")
+        assert json.loads((path / "model.json").read_text())["env"]["id"] == \
+            "mo_gymnasium:deep-sea-treasure-v0"
+        loaded = TPO.load(path)
+        assert loaded.config.num_envs == model.config.num_envs
+        assert loaded.predict(np.array([0, 0])) == model.predict(np.array([0, 0]))
+        assert stat.S_IMODE(os.stat(path).st_mode) == 0o777 & ~UMASK

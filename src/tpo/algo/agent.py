@@ -29,9 +29,10 @@ from flax import serialization
 
 from tpo.algo.config import TPOConfig
 from tpo.algo.evaluate import exact_values, monte_carlo, summarize
-from tpo.algo.host import EnvFactory, HostEnv, HostRunner, env_factory
+from tpo.algo.host import EnvFactory, HostEnv, HostRunner, env_factory, registered_name
 from tpo.algo.networks import mode, sample
 from tpo.algo.train import Trainer, TrainState
+from tpo.atomic import UMASK
 from tpo.envs import load_map, parse_map
 from tpo.envs.continuous import ContinuousNav
 from tpo.envs.grid import GridNav
@@ -84,20 +85,23 @@ def make_env(spec: dict[str, Any], *, evaluation: bool = False) -> GridNav | Con
 def _host_env(env: str | gym.Env | gym.vector.VectorEnv | EnvFactory,
               objectives: Sequence[str], num_envs: int) -> HostEnv:
     if isinstance(env, gym.vector.VectorEnv):
-        copies, makers = getattr(env, "envs", None), getattr(env, "env_fns", None)
+        # Vector wrappers are bypassed: TPO steps the copies and keeps its own statistics.
+        base = env.unwrapped
+        copies, makers = getattr(base, "envs", None), getattr(base, "env_fns", None)
         if not copies or not makers:
-            raise TPOError(f"{type(env).__name__}: TPO steps a vector env's copies itself, "
+            raise TPOError(f"{type(base).__name__}: TPO steps a vector env's copies itself, "
                            "so it takes a SyncVectorEnv (e.g. MO-Gymnasium's "
                            "MOSyncVectorEnv); or pass the env id or a factory")
         spec = copies[0].spec
         return HostEnv(makers[0], objectives, len(copies),
-                       env_id=None if spec is None else spec.id, envs=copies)
+                       env_id=None if spec is None else registered_name(spec), envs=copies)
     if isinstance(env, gym.Env):
         if env.spec is None:
             raise TPOError("a Gymnasium env object needs a spec (make it with gym.make) "
                            "or pass a factory: TPO(lambda: MyEnv(), ...)")
         spec = env.spec
-        return HostEnv(lambda: gym.make(spec), objectives, num_envs, env_id=spec.id)
+        return HostEnv(lambda: gym.make(spec, disable_env_checker=True), objectives, num_envs,
+                       env_id=registered_name(spec))
     return HostEnv(env_factory(env), objectives, num_envs,
                    env_id=env if isinstance(env, str) else None)
 
@@ -215,7 +219,8 @@ class TPO:
         done = int(state.update)
         while done < trainer.num_updates:
             n = min(chunk_updates - done % chunk_updates, trainer.num_updates - done)
-            new_state, metrics = self._run(state, slack, n, chunk_updates)
+            new_state, metrics = self._run(state, slack, n,
+                                           min(chunk_updates, trainer.num_updates))
             metrics = jax.tree.map(np.asarray, metrics)
             self._check_finite(new_state, metrics, done)
             state, done = new_state, done + n
@@ -329,6 +334,7 @@ class TPO:
         blob = serialization.to_bytes(state.replace(key=jax.random.key_data(state.key)))
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        tmp.chmod(0o777 & ~UMASK)  # a plain mkdir's permissions, not mkdtemp's 0700
         (tmp / "model.json").write_text(json.dumps(meta, indent=2))
         (tmp / "state.msgpack").write_bytes(blob)
         for f in tmp.iterdir():

@@ -56,6 +56,15 @@ def env_factory(env: str | EnvFactory, **kwargs: Any) -> EnvFactory:
     return lambda: gym.make(env_id, disable_env_checker=True, **kwargs)
 
 
+def registered_name(spec: gym.envs.registration.EnvSpec) -> str:
+    """``"package:EnvId"`` of a registered env (what :func:`env_factory` takes): the
+    package is the top module of the spec's entry point."""
+    entry = spec.entry_point
+    module = entry.partition(":")[0] if isinstance(entry, str) else getattr(
+        entry, "__module__", "gymnasium")
+    return f"{module.split('.')[0]}:{spec.id}"
+
+
 class HostEnv:
     """``num_envs`` copies of a Gymnasium env with vector rewards (made by ``make``,
     or the given ``envs``), stepped in turn (auto-reset in the same step, the true
@@ -96,6 +105,10 @@ class HostEnv:
                            "Discrete and 1-D Box actions")
         self.envs = list(envs) if envs else [probe, *(make() for _ in range(num_envs - 1))]
         self.num_envs = len(self.envs)
+        for i, env in enumerate(self.envs[1:], 1):
+            if (env.observation_space, env.action_space) != (probe.observation_space, space):
+                raise EnvError(f"copy {i} of {self.name} has other observation or action "
+                               "spaces than copy 0")
 
     def copy(self, num_envs: int) -> HostEnv:
         """Another set of ``num_envs`` copies of the same env."""

@@ -348,9 +348,10 @@ class Trainer:
 
     def run_chunk(self, state: TrainState, slack: jax.Array, num_updates: jax.Array,
                   length: int) -> tuple[TrainState, dict]:
-        """``num_updates`` updates (traced, at most ``length``); metrics in ``length``
-        rows of which the first ``num_updates`` are filled. One compiled program
-        serves every chunk of a run, the short last one too."""
+        """``num_updates`` updates (traced; at most ``length``, the rows beyond are not
+        written); metrics in ``length`` rows of which the first ``num_updates`` are
+        filled. One compiled program serves every chunk of a run, the short last
+        one too."""
         _, shapes = jax.eval_shape(self.update, state, slack)
         rows = jax.tree.map(lambda x: jnp.zeros((length, *x.shape), x.dtype), shapes)
 

@@ -88,7 +88,8 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
     per_seed = [trainer.init(jax.random.key(s)) for s in seeds]  # outside vmap: DESIGN §6
     states = jax.tree.map(lambda *x: jnp.stack(x), *per_seed)
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(slack_arr), *x.shape)), states)
-    over_seeds = jax.vmap(lambda st, sl, n: trainer.run_chunk(st, sl, n, chunk_updates)[0],
+    length = min(chunk_updates, trainer.num_updates)
+    over_seeds = jax.vmap(lambda st, sl, n: trainer.run_chunk(st, sl, n, length)[0],
                           in_axes=(0, None, None))
     chunk = jax.jit(jax.vmap(over_seeds, in_axes=(0, 0, None)))  # one program, every chunk
     done = 0
