@@ -43,9 +43,10 @@ def steps_done(run_dir: Path) -> int:
         return 0
     if len(rows) < 2:
         return 0
-    header, last = rows[0].split(","), rows[-1].split(",")
-    try:
-        return int(float(last[header.index("timesteps")]))
+    header = rows[0].split(",")
+    whole = [r.split(",") for r in rows[1:] if r.count(",") == len(header) - 1]
+    try:  # the last whole row (a row being written may be cut short)
+        return int(float(whole[-1][header.index("timesteps")]))
     except (ValueError, IndexError):
         return 0
 
@@ -87,12 +88,14 @@ def main() -> None:
         at = [r for _, n, r in samples if n <= args.steps * tenth / 10]
         if at:
             print(f"  {tenth * 10:3d} % of steps: RSS {at[-1]:7.1f} MB")
+    if not samples:
+        sys.exit("no samples: the run ended before the first one")
     last = max(n for _, n, _ in samples)
     training = [(n, r) for _, n, r in samples if n < last]  # then saving and evaluation
     warm = [(n, r) for n, r in training if n >= args.steps * 0.2]
-    print(f"peak RSS {max(r for _, _, r in samples):.1f} MB; during training "
-          f"{max(r for _, r in training):.1f} MB; saving and evaluation "
-          f"{max(r for _, n, r in samples if n == last):.1f} MB")
+    during = f"{max(r for _, r in training):.1f} MB" if training else "not sampled"
+    print(f"peak RSS {max(r for _, _, r in samples):.1f} MB; during training {during}; "
+          f"saving and evaluation {max(r for _, n, r in samples if n == last):.1f} MB")
     if len(warm) >= 2:
         (n0, r0), (n1, r1) = warm[0], warm[-1]
         print(f"training after warm-up: {r0:.1f} MB at {n0} steps -> {r1:.1f} MB at {n1} "
