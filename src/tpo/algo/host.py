@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import importlib
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -159,6 +159,14 @@ class HostEnv:
             env.close()
 
 
+def _key_stream(key: jax.Array, block: int = 256) -> Iterator[np.ndarray]:
+    """Endless raw key data from ``key``, split ``block`` at a time (one JAX call
+    per block, not per step)."""
+    while True:
+        key, sub = jax.random.split(key)
+        yield from np.asarray(jax.random.key_data(jax.random.split(sub, block)))
+
+
 def _quiet(make: EnvFactory) -> EnvFactory:
     """``make`` without Gymnasium's warning that a float64 Box bound was cast to
     float32 (MO-Gymnasium's envs declare their reward spaces so: harmless noise
@@ -268,10 +276,9 @@ class HostRunner:
         obs = env.reset(seed)
         r_acc, d_acc = np.zeros((n, k)), np.zeros((n, k))
         g_acc, l_acc = np.ones(n), np.zeros(n)
-        key = jax.random.key(seed)
+        keys = _key_stream(jax.random.key(seed))
         while min(len(f) for f in found) < quota:
-            key, k_act = jax.random.split(key)
-            action = self._act(actor, obs, jax.random.key_data(k_act), jnp.bool_(greedy))
+            action = self._act(actor, obs, next(keys), jnp.bool_(greedy))
             obs, reward, term, trunc, _ = env.step(np.asarray(action))
             r_acc += reward
             d_acc += g_acc[:, None] * reward
