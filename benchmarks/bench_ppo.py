@@ -135,15 +135,22 @@ def run_host(n_envs: int, updates: int, gym_id: str | None = None) -> dict:
     trainer = Trainer(env, graph, config, config.batch_size * (2 * updates + 1) * 3)
     runner, slack = HostRunner(trainer, env), trainer.slack_array()
     state = trainer.init(jax.random.key(0), obs=env.reset(0))
+    return timed(lambda s: runner.run(s, slack, 1), lambda s: runner.run(s, slack, updates),
+                 state, updates * config.batch_size)
+
+
+def timed(warm_up, run, state, steps: int) -> dict:
+    """``run(warm_up(state))`` timed, the warm-up (compilation) apart."""
+    import jax
+
     t0 = time.perf_counter()
-    state, _ = runner.run(state, slack, 1)
+    state, _ = warm_up(state)
     jax.block_until_ready(state)
     compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    state, _ = runner.run(state, slack, updates)
+    state, _ = run(state)
     jax.block_until_ready(state)
-    return {"seconds": time.perf_counter() - t0, "steps": updates * config.batch_size,
-            "compile_s": compile_s}
+    return {"seconds": time.perf_counter() - t0, "steps": steps, "compile_s": compile_s}
 
 
 # ------------------------------------------------------------------------ JAX
@@ -171,15 +178,7 @@ def run_jax(dag: str, n_envs: int, updates: int, seeds: int = 1) -> dict:
         state = jax.tree.map(lambda *x: jnp.stack(x),
                              *[trainer.init(jax.random.key(i)) for i in range(seeds)])
         run = jax.jit(jax.vmap(lambda s: trainer.run(s, slack, updates)))
-    t0 = time.perf_counter()
-    state, _ = run(state)
-    jax.block_until_ready(state)
-    compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    state, _ = run(state)
-    jax.block_until_ready(state)
-    return {"seconds": time.perf_counter() - t0, "steps": seeds * updates * config.batch_size,
-            "compile_s": compile_s}
+    return timed(run, run, state, seeds * updates * config.batch_size)
 
 
 # -------------------------------------------------------------------- PyTorch

@@ -45,6 +45,8 @@ FORMAT = 2
 
 class NonFiniteError(TPOError):
     """Training produced NaN or infinity."""
+
+
 Callback = Callable[[dict[str, np.ndarray], int], bool | None]
 
 

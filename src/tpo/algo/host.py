@@ -74,8 +74,8 @@ class HostEnv:
 
     def __init__(self, make: EnvFactory, objectives: Sequence[str], num_envs: int,
                  env_id: str | None = None, envs: Sequence[gym.Env] | None = None) -> None:
-        self.make, self.env_id = _quiet(make), env_id
-        make = self.make
+        make = self.make = _quiet(make)
+        self.env_id = env_id
         probe = envs[0] if envs else make()
         self.name = _name(probe)
         reward_space = getattr(probe.unwrapped, "reward_space", None)
