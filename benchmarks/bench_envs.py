@@ -26,7 +26,7 @@ def rollout_fn(env, n_envs: int, n_steps: int, continuous_actions: bool):
     def sample(key):
         if continuous_actions:
             return jax.random.uniform(key, (n_envs, 2), minval=-1, maxval=1)
-        return jax.random.randint(key, (n_envs,), 0, env.num_actions)
+        return jax.random.randint(key, (n_envs,), 0, env.action_space.n)
 
     def run(key):
         _, states = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, n_envs),

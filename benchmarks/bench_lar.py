@@ -4,7 +4,7 @@
 
 An n x n open grid (4 moves, bumps at the border), goal in a corner, an avoid
 band across the middle and a monitor square off the shortest path; rewards as
-in DESIGN.md §3; gamma 0.99. For every DAG (at --slack) and size it prints the
+in docs/design.md §3; gamma 0.99. For every DAG (at --slack) and size it prints the
 median time of build and solve over the repeats and the value-iteration sweeps
 per objective; at the end the process's peak RSS.
 """

@@ -50,7 +50,7 @@ def main() -> None:
                     s, t.slack_array(), t.num_updates)))(states)
                 best = solve_lar(eval_env.tabular(config.gamma).model,
                                  graph).start_values()[objective]
-                values = [exact_values(trainer, jax.tree.map(lambda x, i=i: x[i],
+                values = [exact_values(trainer.policy, jax.tree.map(lambda x, i=i: x[i],
                                                              states.params["actor"]),
                                        eval_env, config.gamma)["greedy"][objective]
                           for i in range(args.seeds)]

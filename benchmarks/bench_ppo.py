@@ -119,12 +119,13 @@ class MOGridEnv(GridEnv):
 
 
 def run_host(n_envs: int, updates: int, gym_id: str | None = None) -> dict:
-    """TPO's host-stepped path (``tpo.algo.host``) on :class:`MOGridEnv`, or on the
+    """TPO's host-stepped path (``tpo.algo.runners.HostRunner``) on :class:`MOGridEnv`, or on the
     registered Gymnasium id ``gym_id`` (the JAX env stepped one transition per call)."""
     import jax
 
     from tpo.algo import TPOConfig, Trainer
-    from tpo.algo.host import HostEnv, HostRunner
+    from tpo.algo.runners import HostRunner
+    from tpo.envs.gym_adapter import HostEnv
     from tpo.graph import ObjectiveGraph
 
     make = MOGridEnv if gym_id is None else (lambda: gym.make(gym_id))
@@ -135,7 +136,7 @@ def run_host(n_envs: int, updates: int, gym_id: str | None = None) -> dict:
     trainer = Trainer(env, graph, config, config.batch_size * (2 * updates + 1) * 3)
     runner, slack = HostRunner(trainer, env), trainer.slack_array()
     state = trainer.init(jax.random.key(0), obs=env.reset(0))
-    return timed(lambda s: runner.run(s, slack, 1), lambda s: runner.run(s, slack, updates),
+    return timed(lambda s: runner(s, slack, 1, 1), lambda s: runner(s, slack, updates, updates),
                  state, updates * config.batch_size)
 
 

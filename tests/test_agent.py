@@ -89,7 +89,7 @@ def test_load_rejects_a_folder_that_is_not_a_model(tmp_path):
 
 
 def test_non_finite_training_stops_naming_phase_and_update_and_keeps_the_good_state():
-    from tpo.algo.agent import NonFiniteError
+    from tpo.algo import NonFiniteError
 
     model = TPO("small", "M>A>G", slack=[100, 0], config=CONFIG)
     model.learn(8 * 32 * 6, chunk_updates=2, callback=lambda m, n: n < 2)  # 2 per phase

@@ -5,7 +5,7 @@ import stat
 
 import pytest
 
-from tpo.atomic import UMASK, write_atomic
+from tpo.atomic import UMASK, write_atomic, write_dir_atomic
 
 
 def test_an_atomic_file_has_the_permissions_of_a_plain_one(tmp_path):
@@ -26,3 +26,18 @@ def test_a_rewrite_replaces_the_whole_file(tmp_path):
     write_atomic(tmp_path / "a.txt", b"short")
     assert (tmp_path / "a.txt").read_text() == "short"
     assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
+
+
+def test_a_directory_is_written_whole_and_replaced_only_when_asked(tmp_path):
+    path = tmp_path / "model"
+    write_dir_atomic(path, {"a.json": "{}", "b.bin": b"\x00\x01"})
+    assert sorted(p.name for p in path.iterdir()) == ["a.json", "b.bin"]
+    assert stat.S_IMODE(os.stat(path).st_mode) == 0o777 & ~UMASK
+    with pytest.raises(FileExistsError):
+        write_dir_atomic(path, {"c": "x"})
+    write_dir_atomic(path, {"c": "x"}, overwrite=True)
+    assert [p.name for p in path.iterdir()] == ["c"]
+    with pytest.raises(TypeError):
+        write_dir_atomic(path, {"d": 3}, overwrite=True)  # neither str nor bytes
+    assert [p.name for p in tmp_path.iterdir()] == ["model"]  # no temporary left behind
+    assert [p.name for p in path.iterdir()] == ["c"]  # the old directory is kept

@@ -132,3 +132,36 @@ def test_train_refuses_to_replace_a_run_and_rejects_bad_config(tmp_path, capsys)
     assert "cannot read --config" in capsys.readouterr().err
     assert main(["eval", str(tmp_path / "nothing")]) == 2
     assert "is not a saved tpo model" in capsys.readouterr().err
+
+
+def test_every_run_field_and_hyperparameter_is_a_documented_train_flag():
+    from dataclasses import fields
+
+    from tpo.algo import TPOConfig
+    from tpo.experiments import RunSpec
+
+    text = run("train", "--help").stdout
+    names = [f.name for f in fields(TPOConfig)] + [f.name for f in fields(RunSpec)
+                                                   if f.name != "config"]
+    for name in names:
+        assert f"--{name.replace('_', '-')} " in text, name
+    assert "Adam's step size" in text and "--no-anneal-lr" in text
+
+
+def test_train_flags_reach_the_run_config_and_bad_values_are_one_line(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["train", "--map", "small", "--dag", "A>G", "--steps", "1024", "--num-envs",
+                 "4", "--num-steps", "32", "--num-minibatches", "2", "--hidden", "16,16",
+                 "--no-anneal-lr", "--beta", "auto", "--phase-fractions", "1,3", "--out",
+                 str(out), "--quiet", "--episodes", "2"]) == 0
+    config = (out / "config.toml").read_text()
+    for line in ("num_envs = 4", "num_steps = 32", "hidden = [\n    16,\n    16,\n]",
+                 "anneal_lr = false", 'beta = "auto"', "phase_fractions = [\n    1.0,\n"):
+        assert line in config, (line, config)
+    capsys.readouterr()
+    for args, message in [(["--num-envs", "many"], "bad --num-envs 'many': expected int"),
+                          (["--hidden", "64,x"], "bad --hidden '64,x': expected int,..."),
+                          (["--gamma", "1"], "gamma must be in [0, 1), got 1.0")]:
+        assert main(["train", "--map", "small", "--out", str(tmp_path / "x"), *args]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err

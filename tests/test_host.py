@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from tpo.algo import TPO, TPOConfig
-from tpo.algo.host import EnvError, HostEnv
 from tpo.atomic import UMASK
+from tpo.envs.gym_adapter import EnvError, HostEnv
 from tpo.errors import TPOError
 
 SMALL = TPOConfig(num_envs=4, num_steps=16)

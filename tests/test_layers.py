@@ -1,4 +1,4 @@
-"""DESIGN.md §5: a lower layer never imports a higher one."""
+"""docs/design.md §4: a lower layer never imports a higher one."""
 
 import ast
 from pathlib import Path

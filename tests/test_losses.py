@@ -7,7 +7,6 @@ import pytest
 from tpo.algo.lagrangian import ancestral_advantages, lagrangian_advantages, violations
 from tpo.algo.losses import (
     clipped_surrogate,
-    clipped_value_loss,
     discounted_cumsum,
     gae,
     normalize,
@@ -46,12 +45,6 @@ def test_clipped_surrogate():
     assert float(loss) == pytest.approx(0.5)
 
 
-def test_clipped_value_loss_is_pessimistic():
-    # V = 2 moved from 1 by more than 0.2: clipped 1.2 is further from 3 -> 0.5 * 1.8^2.
-    loss = clipped_value_loss(jnp.array([2.0]), jnp.array([1.0]), jnp.array([3.0]), 0.2)
-    assert float(loss) == pytest.approx(1.62)
-
-
 def test_normalize():
     out = normalize(jnp.array([1.0, 3.0]))
     assert np.allclose(out, [-1.0, 1.0], atol=1e-6)
@@ -86,3 +79,22 @@ def test_literal_form_moves_the_penalty_one_step_back():
                                          2.0, term, term, 0.5, 0.5)
     assert np.allclose(adv, [1.53125 - 1.0, 2.125, 1.5])
     assert np.allclose(targets, [2.03125, 3.125, 3.0])  # raw returns
+
+
+def test_both_forms_with_beta_0_are_gae():
+    term = jnp.array([0.0, 0.0, 1.0])
+    penalty = jnp.array([0.3, 1.0, 2.0])
+    expected = gae(R, V, V_NEXT, term, term, 0.5, 0.5)
+    for form in ("penalized", "literal"):
+        got = lagrangian_advantages(form, R, V, V_NEXT, penalty, 0.0, term, term, 0.5, 0.5)
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_shape_guards_name_the_mismatched_array():
+    with pytest.raises(ValueError, match=r"done has shape \(2,\), expected \(3,\)"):
+        gae(R, V, V_NEXT, jnp.zeros(3), jnp.zeros(2), 0.5, 0.5)
+    with pytest.raises(ValueError, match=r"penalty has shape \(3, 1\)"):
+        lagrangian_advantages("penalized", R, V, V_NEXT, jnp.zeros((3, 1)), 1.0, jnp.zeros(3),
+                              jnp.zeros(3), 0.5, 0.5)
+    with pytest.raises(ValueError, match="must be \\[n_edges\\] each"):
+        violations(jnp.zeros(3), jnp.array([0, 1]), jnp.zeros(3))

@@ -9,7 +9,7 @@ from tpo.algo import TPOConfig
 from tpo.cli.main import main
 from tpo.envs import grid_model, load_map
 from tpo.envs.grid import GridNav
-from tpo.experiments.reproduce import PANELS, direction
+from tpo.experiments.paper import PANELS, direction
 from tpo.experiments.sweep import run_sweep
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar

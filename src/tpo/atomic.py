@@ -1,8 +1,10 @@
-"""Files written whole or not at all: a kill never leaves a half-written file."""
+"""Files and directories written whole or not at all: a kill never leaves a
+half-written one."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -31,3 +33,34 @@ def write_atomic(path: str | Path, data: str | bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def write_dir_atomic(path: str | Path, files: dict[str, str | bytes],
+                     overwrite: bool = False) -> Path:
+    """Write the directory ``path`` holding ``files`` (name -> contents) through a
+    synced temporary directory and renames: a kill leaves the old directory or
+    the new one, never a half-written one. An existing ``path`` is replaced only
+    with ``overwrite`` (else :class:`FileExistsError`)."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        tmp.chmod(0o777 & ~UMASK)  # a plain mkdir's permissions, not mkdtemp's 0700
+        for name, data in files.items():
+            with open(tmp / name, "wb") as fh:
+                fh.write(data.encode() if isinstance(data, str) else data)
+                fh.flush()
+                os.fsync(fh.fileno())
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            os.replace(path, old / path.name)
+            os.replace(tmp, path)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path

@@ -8,8 +8,11 @@ import tomllib
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from tpo.algo.lagrangian import ADVANTAGE_FORMS
+import tomli_w
+
 from tpo.errors import TPOError
+
+ADVANTAGE_FORMS = ("penalized", "literal")
 
 
 class ConfigError(TPOError):
@@ -18,57 +21,49 @@ class ConfigError(TPOError):
 
 @dataclass(frozen=True)
 class TPOConfig:
-    """Hyperparameters. Defaults are tuned for the navigation grids on 2 CPU cores.
-
-    Attributes:
-        num_envs, num_steps: parallel envs and rollout length; one update sees
-            ``num_envs * num_steps`` transitions.
-        update_epochs, num_minibatches: PPO's passes over each rollout.
-        learning_rate: Adam's step, annealed linearly to 0 within every phase
-            when ``anneal_lr``.
-        gamma, gae_lambda: discount and GAE's lambda.
-        clip_eps, ent_coef, vf_coef, max_grad_norm: PPO's clip range, entropy bonus,
-            value-loss weight and gradient-norm limit (actor and critics apart).
-        hidden, activation: the MLPs of the actor and of each critic.
-        beta: the Lagrange multiplier of every phase (a number), or ``"auto"``:
-            Prop. 2's bound for a violation of one reward unit, the objective's
-            largest value difference ``max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)``.
-        advantage: ``"penalized"`` (default) or ``"literal"`` (Eq. 10 as printed);
-            see :mod:`tpo.algo.lagrangian`.
-        phase_fractions: share of the timesteps of each phase in topological
-            order (default: equal).
-        carry_temperature: the policy carries over from phase to phase (Algorithm 1)
-            with its logits divided by this temperature at each phase start: the same
-            greedy actions, but enough entropy to explore what the new objective
-            wants (1 = carry unchanged; measured in docs/notes/tpo-learning.md).
-        reset_actor: start every phase from the initial actor instead.
-        clip_value: PPO's clipped value loss (off: it stalls critics of large values).
-        critic_refit: share of each phase's updates, at its end, that roll out the
-            greedy policy and train only the critic, so the frozen critic values the
-            phase's final greedy policy.
-    """
+    """Hyperparameters of TPO (and of plain PPO, its one-objective case). Defaults
+    are tuned for the navigation grids on 2 CPU cores; every field is a
+    ``tpo train`` flag (``--num-envs 32``) and a ``config.toml`` key."""
 
     num_envs: int = 16
+    """parallel environments; an update sees num_envs * num_steps transitions"""
     num_steps: int = 128
+    """rollout length of each environment per update"""
     update_epochs: int = 4
+    """PPO's passes over each rollout"""
     num_minibatches: int = 4
+    """minibatches per pass (must divide num_envs * num_steps)"""
     learning_rate: float = 1e-3
+    """Adam's step size (actor and critics)"""
     anneal_lr: bool = True
+    """anneal the learning rate linearly to 0 within every phase"""
     gamma: float = 0.99
+    """discount factor"""
     gae_lambda: float = 0.95
+    """GAE's lambda"""
     clip_eps: float = 0.2
+    """PPO's clip range of the probability ratio"""
     ent_coef: float = 0.01
+    """weight of the entropy bonus"""
     vf_coef: float = 0.5
+    """weight of the value loss"""
     max_grad_norm: float = 0.5
+    """gradient-norm limit (actor and critics apart)"""
     hidden: tuple[int, ...] = (64, 64)
+    """hidden layer widths of the actor and of each critic"""
     activation: str = "tanh"
+    """activation of the hidden layers: tanh or relu"""
     beta: float | str = 10.0
+    """Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a violation
+    of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
     advantage: str = "penalized"
+    """penalized (GAE on the Lagrangian reward) or literal (Eq. 10 as printed);
+    see docs/tpo-algorithm.md"""
     phase_fractions: tuple[float, ...] | None = field(default=None)
-    reset_actor: bool = False
-    clip_value: bool = False
-    critic_refit: float = 0.0
+    """share of the timesteps of each phase in topological order (default: equal)"""
     carry_temperature: float = 5.0
+    """the policy carries over from phase to phase with its logits divided by this
+    temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
 
     def __post_init__(self) -> None:
         for name in ("num_envs", "num_steps", "update_epochs", "num_minibatches"):
@@ -97,8 +92,8 @@ class TPOConfig:
         if self.beta != "auto":
             _nonnegative("beta", self.beta)
         _positive("carry_temperature", self.carry_temperature)
-        if not isinstance(self.critic_refit, (int, float)) or not 0 <= self.critic_refit < 1:
-            raise ConfigError(f"critic_refit must be in [0, 1), got {self.critic_refit!r}")
+        if not isinstance(self.anneal_lr, bool):
+            raise ConfigError(f"anneal_lr must be true or false, got {self.anneal_lr!r}")
         if self.advantage not in ADVANTAGE_FORMS:
             raise ConfigError(f"advantage must be one of {', '.join(ADVANTAGE_FORMS)}, "
                               f"got {self.advantage!r}")
@@ -120,6 +115,9 @@ class TPOConfig:
         else:
             d["phase_fractions"] = list(self.phase_fractions)
         return d
+
+    def to_toml(self) -> str:
+        return tomli_w.dumps(self.to_dict())
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TPOConfig:

@@ -1,8 +1,13 @@
-"""Evaluating a learned policy: Monte Carlo returns, and exact values where the env
-has a tabular model (the ground truth of :mod:`tpo.tabular`)."""
+"""Evaluating a policy: Monte Carlo returns on a JAX env, and exact values where
+the env has a tabular model (the ground truth of :mod:`tpo.tabular`).
+
+Free functions over a *policy function* ``policy(params, obs) -> Distribution``
+(e.g. :meth:`tpo.algo.train.Trainer.policy`), as SB3's ``evaluate_policy``.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -10,32 +15,41 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tpo.algo.networks import mode, sample
-from tpo.tabular import evaluate_policy, softmax
+from tpo.algo.distributions import Distribution
+from tpo.tabular import TabularTMDP, evaluate_policy, softmax
+
+Policy = Callable[[Any, jax.Array], Distribution]
 
 
-def exact_values(trainer: Any, actor_params: dict, env: Any, gamma: float
+def start_values(model: TabularTMDP, policy: np.ndarray) -> np.ndarray:
+    """Exact discounted values ``[k]`` at the start state of ``policy`` (greedy
+    actions ``[S]`` or probabilities ``[S, A]``): the one exact evaluator of a
+    learned policy."""
+    return evaluate_policy(model, policy)[model.start]
+
+
+def tabular_logits(policy: Policy, params: Any, env: Any) -> np.ndarray:
+    """The policy's logits ``[S, A]`` at every state of ``env``'s tabular model."""
+    obs = jnp.asarray(env.tabular_observations())
+    return np.asarray(policy(params, obs).logits, np.float64)
+
+
+def exact_values(policy: Policy, params: Any, env: Any, gamma: float
                  ) -> dict[str, dict[str, float]]:
     """Exact discounted values at the start state of the greedy and the stochastic
     policy, by objective: ``{"greedy": {...}, "stochastic": {...}}``."""
-    grid = env.tabular(gamma)
-    logits, _ = trainer.actor.apply({"params": actor_params},
-                                    jnp.asarray(env.tabular_observations()))
-    logits = np.asarray(logits, np.float64)
-    start = grid.model.start
-    out = {}
-    for name, policy in (("greedy", logits.argmax(axis=1)), ("stochastic", softmax(logits))):
-        values = evaluate_policy(grid.model, policy)[start]
-        out[name] = {n: float(v) for n, v in zip(grid.model.objectives, values, strict=True)}
-    return out
+    model = env.tabular(gamma).model
+    logits = tabular_logits(policy, params, env)
+    return {name: dict(zip(model.objectives, map(float, start_values(model, pi)), strict=True))
+            for name, pi in (("greedy", logits.argmax(axis=1)),
+                             ("stochastic", softmax(logits)))}
 
 
-def episode_returns(trainer: Any, env: Any, actor_params: dict, keys: jax.Array,
-                    greedy: bool, gamma: float) -> tuple[jax.Array, jax.Array, jax.Array]:
+def episode_returns(policy: Policy, params: Any, env: Any, keys: jax.Array, greedy: bool,
+                    gamma: float) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Undiscounted ``[N, k]`` and discounted ``[N, k]`` returns and lengths ``[N]`` of
     one episode per key, from the env's reset until it terminates or truncates
     (traceable: jit it, or vmap it over parameters)."""
-    continuous = trainer.continuous
 
     def episode(key):
         k_reset, k_run = jax.random.split(key)
@@ -44,9 +58,8 @@ def episode_returns(trainer: Any, env: Any, actor_params: dict, keys: jax.Array,
         def body(carry, key):
             obs, state, alive, ret, disc_ret, disc, length = carry
             k_act, k_env = jax.random.split(key)
-            out, log_std = trainer.actor.apply({"params": actor_params}, obs)
-            action = mode(out, continuous) if greedy else sample(k_act, out, log_std,
-                                                                 continuous)
+            pi = policy(params, obs)
+            action = pi.mode() if greedy else pi.sample(k_act)
             obs, state, reward, term, trunc = env.step_env(k_env, state, action, env.params)
             ret = ret + alive * reward
             disc_ret = disc_ret + alive * disc * reward
@@ -64,12 +77,12 @@ def episode_returns(trainer: Any, env: Any, actor_params: dict, keys: jax.Array,
     return jax.vmap(episode)(keys)
 
 
-def monte_carlo(trainer: Any, actor_params: dict, env: Any, key: jax.Array, episodes: int,
+def monte_carlo(policy: Policy, params: Any, env: Any, key: jax.Array, episodes: int,
                 greedy: bool, gamma: float) -> dict[str, np.ndarray]:
     """:func:`episode_returns` of ``episodes`` episodes as NumPy:
     ``{"undiscounted": [N, k], "discounted": [N, k], "length": [N]}``."""
-    run = jax.jit(partial(episode_returns, trainer, env, greedy=greedy, gamma=gamma))
-    ret, disc, length = run(actor_params, jax.random.split(key, episodes))
+    run = jax.jit(partial(episode_returns, policy, env=env, greedy=greedy, gamma=gamma))
+    ret, disc, length = run(params, keys=jax.random.split(key, episodes))
     return {"undiscounted": np.asarray(ret), "discounted": np.asarray(disc),
             "length": np.asarray(length)}
 

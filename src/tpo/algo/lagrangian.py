@@ -1,4 +1,4 @@
-"""Generalized Lagrangian advantage estimation (paper §IV, Eq. 10; DESIGN.md §4).
+"""Generalized Lagrangian advantage estimation (paper §IV, Eq. 10; docs/design.md §5).
 
 Objective ``i``'s PPO phase penalises each transition by
 ``beta * sum_{(w,v) in E_i} C_wv(s_t, a_t)`` with
@@ -24,10 +24,9 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
-from tpo.algo.losses import discounted_cumsum, gae
+from tpo.algo.losses import check_shapes, discounted_cumsum, gae
 
-AdvantageForm = Literal["penalized", "literal"]
-ADVANTAGE_FORMS = ("penalized", "literal")
+AdvantageForm = Literal["penalized", "literal"]  # tpo.algo.config.ADVANTAGE_FORMS
 
 
 def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax.Array,
@@ -38,7 +37,11 @@ def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax
 
 
 def violations(advantages: jax.Array, parents: jax.Array, slack: jax.Array) -> jax.Array:
-    """``C_wv = max(0, -A_w - eta_wv)`` for every edge: ``[..., k] -> [..., n_edges]``."""
+    """``C_wv = max(0, -A_w - eta_wv)`` for every edge: ``[..., k] -> [..., n_edges]``
+    (Prop. 1 with the one-step advantage standing in for ``Q_w - V_w``)."""
+    if jnp.ndim(parents) != 1 or jnp.shape(slack) != jnp.shape(parents):
+        raise ValueError(f"parents {jnp.shape(parents)} and slack {jnp.shape(slack)} must "
+                         "be [n_edges] each")
     return jnp.maximum(0.0, -advantages[..., parents] - slack)
 
 
@@ -48,8 +51,15 @@ def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Arr
                           ) -> tuple[jax.Array, jax.Array]:
     """Advantages and critic targets of the phase's objective (time-major ``[T, ...]``).
 
-    ``penalty`` is ``sum_{E_i} C`` per transition; ``beta`` the multiplier.
+    ``penalty`` is ``sum_{E_i} C`` per transition; ``beta`` the multiplier::
+
+        penalized: A_t = GAE(r_t - beta penalty_t)
+        literal:   A_t = GAE(r_t) - sum_l (gamma lambda)^l gamma beta penalty_{t+l+1}
     """
+    check_shapes(reward, value=value, next_value=next_value, penalty=penalty,
+                 terminated=terminated, done=done)
+    if jnp.ndim(beta) != 0:
+        raise ValueError(f"beta must be a scalar, got shape {jnp.shape(beta)}")
     if form == "penalized":
         return gae(reward - beta * penalty, value, next_value, terminated, done, gamma, lam)
     advantages, targets = gae(reward, value, next_value, terminated, done, gamma, lam)

@@ -9,6 +9,15 @@ import jax
 import jax.numpy as jnp
 
 
+def check_shapes(reference: jax.Array, **arrays: jax.Array) -> None:
+    """Raise ``ValueError`` naming the first of ``arrays`` whose shape is not
+    ``reference``'s (checked when tracing: it costs nothing at run time)."""
+    for name, x in arrays.items():
+        if jnp.shape(x) != jnp.shape(reference):
+            raise ValueError(f"{name} has shape {jnp.shape(x)}, expected "
+                             f"{jnp.shape(reference)}")
+
+
 def gae(rewards: jax.Array, values: jax.Array, next_values: jax.Array, terminated: jax.Array,
         done: jax.Array, gamma: float, lam: float) -> tuple[jax.Array, jax.Array]:
     """Generalised advantage estimation with bootstrapping at truncation.
@@ -23,6 +32,8 @@ def gae(rewards: jax.Array, values: jax.Array, next_values: jax.Array, terminate
 
     Returns ``(advantages, value targets = advantages + values)``.
     """
+    check_shapes(values, next_values=next_values, rewards=rewards, terminated=terminated,
+                 done=done)
     deltas = rewards + gamma * (1.0 - terminated) * next_values - values
     advantages = discounted_cumsum(deltas, gamma * lam, done)
     return advantages, advantages + values
@@ -49,10 +60,3 @@ def clipped_surrogate(log_ratio: jax.Array, advantages: jax.Array, clip: float) 
     ratio = jnp.exp(log_ratio)
     return -jnp.mean(jnp.minimum(ratio * advantages,
                                  jnp.clip(ratio, 1.0 - clip, 1.0 + clip) * advantages))
-
-
-def clipped_value_loss(values: jax.Array, old_values: jax.Array, targets: jax.Array,
-                       clip: float) -> jax.Array:
-    """``0.5 E[max((V - G)^2, (V_old + clip(V - V_old, -eps, eps) - G)^2)]``."""
-    clipped = old_values + jnp.clip(values - old_values, -clip, clip)
-    return 0.5 * jnp.mean(jnp.maximum((values - targets) ** 2, (clipped - targets) ** 2))

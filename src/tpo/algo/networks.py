@@ -2,8 +2,8 @@
 
 Orthogonal initialisation as in PPO implementations (hidden gain sqrt(2),
 policy head 0.01, value heads 1). Parameters are created by :func:`init_params`
-*outside* any vmapped function: DESIGN.md §6 saw ``jit(vmap(train))`` with the
-orthogonal initialiser inside deadlock in a batched QR.
+*outside* any vmapped function: with the orthogonal initialiser inside,
+``jit(vmap(train))`` deadlocked in a batched QR (docs/design.md §5).
 """
 
 from __future__ import annotations
@@ -12,14 +12,33 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import flax.linen as nn
+import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from tpo.algo.distributions import Categorical, DiagGaussian, Distribution
+
 ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
 
 
+def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
+                activation: str) -> jax.Array:
+    """Hidden layers ``layer_0, layer_1, ...`` and the output layer ``out``, created in
+    the calling module (call it from a compact method): named, so code that reads a
+    layer (:meth:`Critics.head`, the actor's softening) never depends on Flax's
+    automatic names."""
+    act = ACTIVATIONS[activation]
+    for i, width in enumerate(hidden):
+        x = act(nn.Dense(width, kernel_init=nn.initializers.orthogonal(np.sqrt(2)),
+                         bias_init=nn.initializers.zeros, name=f"layer_{i}")(x))
+    return nn.Dense(out, kernel_init=nn.initializers.orthogonal(out_gain),
+                    bias_init=nn.initializers.zeros, name="out")(x)
+
+
 class MLP(nn.Module):
+    """:func:`dense_stack` as a module."""
+
     hidden: Sequence[int]
     out: int
     out_gain: float
@@ -27,33 +46,45 @@ class MLP(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        act = ACTIVATIONS[self.activation]
-        for width in self.hidden:
-            x = act(nn.Dense(width, kernel_init=nn.initializers.orthogonal(np.sqrt(2)),
-                             bias_init=nn.initializers.zeros)(x))
-        return nn.Dense(self.out, kernel_init=nn.initializers.orthogonal(self.out_gain),
-                        bias_init=nn.initializers.zeros)(x)
+        return dense_stack(x, self.hidden, self.out, self.out_gain, self.activation)
 
 
 class Actor(nn.Module):
-    """Categorical logits ``[A]``, or a diagonal Gaussian's mean ``[d]`` and log-std."""
+    """The policy ``pi(. | obs)``: a :class:`Categorical` over ``n_out`` actions, or a
+    :class:`DiagGaussian` over ``n_out`` dimensions with a state-independent log-std
+    (:meth:`for_space` picks from an action space). Its output layer is ``out``."""
 
     hidden: Sequence[int]
     n_out: int
-    continuous: bool
+    discrete: bool
     activation: str = "tanh"
 
+    @classmethod
+    def for_space(cls, space: gym.spaces.Space, hidden: Sequence[int],
+                  activation: str) -> Actor:
+        """The actor of a ``Discrete`` or a 1-D ``Box`` action space."""
+        if isinstance(space, gym.spaces.Discrete):
+            return cls(tuple(hidden), int(space.n), True, activation)
+        if isinstance(space, gym.spaces.Box) and len(space.shape) == 1:
+            return cls(tuple(hidden), int(space.shape[0]), False, activation)
+        raise ValueError(f"no policy for action space {space}")
+
     @nn.compact
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-        out = MLP(self.hidden, self.n_out, 0.01, self.activation)(obs)
-        if not self.continuous:
-            return out, jnp.zeros(())
-        log_std = self.param("log_std", nn.initializers.zeros, (self.n_out,))
-        return out, log_std
+    def __call__(self, obs: jax.Array) -> Distribution:
+        out = dense_stack(obs, self.hidden, self.n_out, 0.01, self.activation)
+        if self.discrete:
+            return Categorical(out)
+        return DiagGaussian(out, self.param("log_std", nn.initializers.zeros, (self.n_out,)))
+
+
+def scale_output(actor_params: dict, factor: jax.Array) -> dict:
+    """The actor with its output layer scaled by ``factor`` (logits / temperature)."""
+    return {**actor_params, "out": jax.tree.map(lambda x: x * factor, actor_params["out"])}
 
 
 class Critics(nn.Module):
-    """``k`` independent value networks (stacked parameters ``[k, ...]``): ``[..., k]``.
+    """``k`` independent value networks (stacked parameters ``[k, ...]`` under
+    ``heads``): ``[..., k]``.
 
     Each head predicts its objective's *normalised* value; :class:`ValueNorm`
     turns it into a value.
@@ -67,12 +98,12 @@ class Critics(nn.Module):
     def __call__(self, obs: jax.Array) -> jax.Array:
         heads = nn.vmap(MLP, variable_axes={"params": 0}, split_rngs={"params": True},
                         in_axes=None, out_axes=-1, axis_size=self.k)
-        return heads(self.hidden, 1, 1.0, self.activation)(obs)[..., 0, :]
+        return heads(self.hidden, 1, 1.0, self.activation, name="heads")(obs)[..., 0, :]
 
     def head(self, params: dict, column: jax.Array, obs: jax.Array) -> jax.Array:
         """Head ``column``'s output ``[...]`` alone (one MLP instead of ``k``; the
         gradient reaches only that head's slice of ``params``)."""
-        one = jax.tree.map(lambda x: x[column], params["VmapMLP_0"])
+        one = jax.tree.map(lambda x: x[column], params["heads"])
         mlp = MLP(self.hidden, 1, 1.0, self.activation, parent=None)
         return mlp.apply({"params": one}, obs)[..., 0]
 
@@ -121,34 +152,3 @@ def init_params(key: jax.Array, actor: Actor, critics: Critics,
     dummy = jnp.zeros(obs_shape, jnp.float32)
     return {"actor": actor.init(k_actor, dummy)["params"],
             "critics": critics.init(k_critic, dummy)["params"]}
-
-
-# ------------------------------------------------------------- distributions
-def log_prob(logits_or_mean: jax.Array, log_std: jax.Array, action: jax.Array,
-             continuous: bool) -> jax.Array:
-    if continuous:
-        z = (action - logits_or_mean) / jnp.exp(log_std)
-        return jnp.sum(-0.5 * z**2 - log_std - 0.5 * jnp.log(2 * jnp.pi), axis=-1)
-    logp = jax.nn.log_softmax(logits_or_mean)
-    return jnp.take_along_axis(logp, action[..., None].astype(jnp.int32), -1)[..., 0]
-
-
-def entropy(logits_or_mean: jax.Array, log_std: jax.Array, continuous: bool) -> jax.Array:
-    if continuous:
-        return jnp.sum(log_std + 0.5 * jnp.log(2 * jnp.pi * jnp.e)) * jnp.ones(
-            logits_or_mean.shape[:-1])
-    logp = jax.nn.log_softmax(logits_or_mean)
-    return -jnp.sum(jnp.exp(logp) * logp, axis=-1)
-
-
-def sample(key: jax.Array, logits_or_mean: jax.Array, log_std: jax.Array,
-           continuous: bool) -> jax.Array:
-    if continuous:
-        noise = jax.random.normal(key, logits_or_mean.shape)
-        return logits_or_mean + jnp.exp(log_std) * noise
-    return jax.random.categorical(key, logits_or_mean)
-
-
-def mode(logits_or_mean: jax.Array, continuous: bool) -> jax.Array:
-    """The greedy action."""
-    return logits_or_mean if continuous else jnp.argmax(logits_or_mean, axis=-1)

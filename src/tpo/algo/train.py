@@ -7,14 +7,18 @@ critics of the objectives already trained. After the phase, critic ``i`` is
 frozen too (no later phase trains it). With a one-objective graph this is
 plain PPO, the baseline, in the same code.
 
-The whole run is a ``lax.scan`` over updates; the phase of an update is
-``update // updates_per_phase``, a traced number, so one compiled update
-serves every phase and the run is a single jitted function of a PRNG key,
-parameters and slack, vmappable over seeds and slack values::
+The whole run is a loop over updates; the phase of an update is a traced
+number, so one compiled update serves every phase and the run is a single
+jitted function of the training state and the slack, vmappable over seeds and
+slack values::
 
     trainer = Trainer(env, graph, config, total_timesteps)
     state = trainer.init(key)
     state, metrics = trainer.run(state, slack, trainer.num_updates)
+
+An update is :meth:`Trainer.collect` (a rollout of the JAX env) then
+:meth:`Trainer.learn`, which reads top to bottom: begin the phase, compute the
+Lagrangian targets, run the PPO epochs.
 """
 
 from __future__ import annotations
@@ -31,18 +35,11 @@ import optax
 from flax import struct
 
 from tpo.algo.config import ConfigError, TPOConfig
+from tpo.algo.distributions import Distribution
+from tpo.algo.episodes import EpisodeStats
 from tpo.algo.lagrangian import ancestral_advantages, lagrangian_advantages, violations
-from tpo.algo.losses import clipped_surrogate, clipped_value_loss, normalize
-from tpo.algo.networks import (
-    Actor,
-    Critics,
-    ValueNorm,
-    entropy,
-    init_params,
-    log_prob,
-    mode,
-    sample,
-)
+from tpo.algo.losses import clipped_surrogate, normalize
+from tpo.algo.networks import Actor, Critics, ValueNorm, init_params, scale_output
 from tpo.graph import ObjectiveGraph
 
 
@@ -50,17 +47,15 @@ from tpo.graph import ObjectiveGraph
 class TrainState:
     """Everything a run carries from update to update (a pytree)."""
 
-    params: dict
-    initial_actor: dict  # the actor's parameters at the start of the run
+    params: dict  # {"actor": ..., "critics": ...}
     actor_opt: Any
     critic_opt: Any
-    env_state: Any
+    env_state: Any  # None for a host-stepped env
     obs: jax.Array  # [E, D]
     key: jax.Array
     update: jax.Array  # int32 [], updates done
     value_norm: ValueNorm
-    episode_return: jax.Array  # [E, k] running undiscounted returns
-    episode_length: jax.Array  # [E]
+    episodes: EpisodeStats
 
 
 class Rollout(NamedTuple):
@@ -75,6 +70,17 @@ class Rollout(NamedTuple):
     final_obs: jax.Array  # the true s_{t+1} (before any auto-reset)
     terminated: jax.Array  # float: s_{t+1} is terminal (no bootstrap)
     done: jax.Array  # float: the episode ended (terminated or truncated)
+
+
+class Batch(NamedTuple):
+    """One phase's training data, flattened to ``[B, ...]``."""
+
+    obs: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array  # V_i(s_t) of the phase's critic, before the update
+    advantage: jax.Array
+    target: jax.Array
 
 
 @dataclass(frozen=True)
@@ -113,16 +119,17 @@ class Problem:
 
 
 class Trainer:
-    """The compiled pieces of a TPO run on a pure JAX env (see the module docstring)."""
+    """The compiled pieces of a TPO run (see the module docstring). ``env`` is a
+    pure JAX env, or a host-stepped one whose rollouts come from elsewhere
+    (:class:`tpo.algo.runners.HostRunner`); either declares ``action_space``,
+    ``obs_shape``, ``objectives`` and the reward bounds."""
 
     def __init__(self, env: Any, graph: ObjectiveGraph, config: TPOConfig,
                  total_timesteps: int) -> None:
         self.env, self.config, self.total_timesteps = env, config, total_timesteps
         self.problem = Problem.build(graph, env.objectives, config, env.reward_low,
                                      env.reward_high)
-        self.continuous = getattr(env, "num_actions", None) is None
-        n_out = env.action_dim if self.continuous else env.num_actions
-        self.actor = Actor(config.hidden, n_out, self.continuous, config.activation)
+        self.actor = Actor.for_space(env.action_space, config.hidden, config.activation)
         self.critics = Critics(config.hidden, len(env.objectives), config.activation)
         n_phases = len(self.problem.order)
         if config.phase_fractions is not None and len(config.phase_fractions) != n_phases:
@@ -139,19 +146,21 @@ class Trainer:
                                         / fractions.sum())).astype(np.int32)
         self.phase_updates = shares
         self.phase_start = np.concatenate([[0], np.cumsum(shares)]).astype(np.int32)
-        refit = np.floor(shares * config.critic_refit).astype(np.int32)
-        self.policy_updates = np.maximum(1, shares - refit).astype(np.int32)
         self.num_updates = int(self.phase_start[-1])
-        self._actor_tx = self._optimizer()
-        self._critic_tx = self._optimizer()
-
-    def _optimizer(self) -> optax.GradientTransformation:
-        return optax.chain(optax.clip_by_global_norm(self.config.max_grad_norm),
-                           optax.scale_by_adam(eps=1e-5))
+        # The learning rate anneals to 0 within every phase (or stays constant).
+        self.learning_rate = optax.join_schedules(
+            [optax.linear_schedule(config.learning_rate, 0.0, int(n)) if config.anneal_lr
+             else optax.constant_schedule(config.learning_rate) for n in shares],
+            [int(b) for b in self.phase_start[1:-1]])
+        # Actor and critics clip their gradient norms apart; Adam's state restarts
+        # with every phase.
+        self.optimizer = optax.chain(
+            optax.clip_by_global_norm(config.max_grad_norm),
+            optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate, eps=1e-5))
 
     # ------------------------------------------------------------------ init
     def init_params(self, key: jax.Array) -> dict:
-        """Network parameters of one seed (outside any vmap: DESIGN.md §6)."""
+        """Network parameters of one seed (outside any vmap: docs/design.md §5)."""
         return init_params(key, self.actor, self.critics, self.env.obs_shape)
 
     def init(self, key: jax.Array, params: dict | None = None,
@@ -174,171 +183,158 @@ class Trainer:
     @partial(jax.jit, static_argnums=0)
     def _init_state(self, params: dict, env_state: Any, obs: jax.Array, k_run: jax.Array
                     ) -> TrainState:
-        e, k = self.config.num_envs, len(self.problem.objectives)
-        return TrainState(params, params["actor"], self._actor_tx.init(params["actor"]),
-                          self._critic_tx.init(params["critics"]), env_state, obs, k_run,
-                          jnp.zeros((), jnp.int32), ValueNorm.init(k), jnp.zeros((e, k)),
-                          jnp.zeros((e,)))
+        k = len(self.problem.objectives)
+        return TrainState(params, self.optimizer.init(params["actor"]),
+                          self.optimizer.init(params["critics"]), env_state, obs, k_run,
+                          jnp.zeros((), jnp.int32), ValueNorm.init(k),
+                          EpisodeStats.init(self.config.num_envs, k))
+
+    # -------------------------------------------------------------- policy
+    def policy(self, actor_params: dict, obs: jax.Array) -> Distribution:
+        """``pi(. | obs)``: the action distribution of the actor with ``actor_params``."""
+        return self.actor.apply({"params": actor_params}, obs)
+
+    def values(self, state: TrainState, obs: jax.Array) -> jax.Array:
+        """Every critic's value ``[..., k]`` at ``obs``."""
+        return state.value_norm.denormalize(
+            self.critics.apply({"params": state.params["critics"]}, obs))
 
     # ---------------------------------------------------------------- update
     def phase_of(self, update: jax.Array) -> jax.Array:
-        return jnp.sum(update >= jnp.asarray(self.phase_start[1:])).astype(jnp.int32)
-
-    def phase_info(self, state: TrainState) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """The current phase, its first update, and whether this update refits the
-        critic with greedy rollouts (``critic_refit``)."""
-        phase = jnp.minimum(self.phase_of(state.update), len(self.problem.order) - 1)
-        start = jnp.asarray(self.phase_start)[phase]
-        refit = (state.update - start) >= jnp.asarray(self.policy_updates)[phase]
-        return phase, start, refit
+        """The phase of an update (the last phase beyond the run's end)."""
+        phase = jnp.sum(update >= jnp.asarray(self.phase_start[1:])).astype(jnp.int32)
+        return jnp.minimum(phase, len(self.problem.order) - 1)
 
     def update(self, state: TrainState, slack: jax.Array) -> tuple[TrainState, dict]:
         """One PPO update of the current phase: a rollout of the JAX env, then
         :meth:`learn`."""
-        _, _, refit = self.phase_info(state)
-        state, rollout, episodes = self._rollout(state, greedy=refit)
+        state, rollout, episodes = self.collect(state)
         return self.learn(state, slack, rollout, episodes)
+
+    def collect(self, state: TrainState) -> tuple[TrainState, Rollout, dict]:
+        """``num_steps`` steps of every env under the current policy, and the
+        statistics of the episodes that finished."""
+        env, cfg = self.env, self.config
+        actor = state.params["actor"]
+
+        def step(carry, key):
+            env_state, obs, stats = carry
+            k_act, k_env = jax.random.split(key)
+            pi = self.policy(actor, obs)
+            action = pi.sample(k_act)
+            obs2, env_state, reward, term, trunc, info = jax.vmap(
+                env.step, in_axes=(0, 0, 0, None))(
+                jax.random.split(k_env, cfg.num_envs), env_state, action, env.params)
+            done = (term | trunc).astype(jnp.float32)
+            out = Rollout(obs, action, pi.log_prob(action), reward, info["final_obs"],
+                          term.astype(jnp.float32), done)
+            return (env_state, obs2, stats.update(reward, done)), out
+
+        key, k_roll = jax.random.split(state.key)
+        (env_state, obs, stats), rollout = jax.lax.scan(
+            step, (state.env_state, state.obs, state.episodes.clear()),
+            jax.random.split(k_roll, cfg.num_steps))
+        state = state.replace(env_state=env_state, obs=obs, key=key, episodes=stats)
+        return state, rollout, stats.summary()
 
     def learn(self, state: TrainState, slack: jax.Array, rollout: Rollout,
               episodes: dict) -> tuple[TrainState, dict]:
-        """The update from one rollout: Lagrangian advantages, then PPO epochs."""
+        """The update from one rollout (of any source)."""
+        phase = self.phase_of(state.update)
+        state = self.begin_phase(state, phase)
+        batch, penalty, value_norm = self.lagrangian_targets(state, slack, rollout, phase)
+        lr = self.learning_rate(state.update)
+        state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr)
+        metrics = {"phase": phase, "lr": lr,
+                   "penalty": penalty.mean(), "violation_rate": (penalty > 0).mean(),
+                   **episodes, **jax.tree.map(jnp.mean, losses)}
+        return state, metrics
+
+    def begin_phase(self, state: TrainState, phase: jax.Array) -> TrainState:
+        """At a phase's first update: restart both optimisers, and carry the policy
+        over softened (logits divided by ``carry_temperature``) into every phase but
+        the first; at any other update, the state unchanged."""
+        first = state.update == jnp.asarray(self.phase_start)[phase]
+        soften = first & (phase > 0)
+        actor = scale_output(state.params["actor"],
+                             jnp.where(soften, 1.0 / self.config.carry_temperature, 1.0))
+        params = {**state.params, "actor": actor}
+        return state.replace(
+            params=params,
+            actor_opt=_where_tree(first, self.optimizer.init(actor), state.actor_opt),
+            critic_opt=_where_tree(first, self.optimizer.init(params["critics"]),
+                                   state.critic_opt))
+
+    def lagrangian_targets(self, state: TrainState, slack: jax.Array, rollout: Rollout,
+                           phase: jax.Array) -> tuple[Batch, jax.Array, ValueNorm]:
+        """The phase's advantages and critic targets (Eq. 10 with the frozen ancestral
+        critics' violations), the penalty of every transition ``[T, E]``, and the
+        value statistics with the new targets folded in."""
         cfg, prob = self.config, self.problem
-        phase, start, refit = self.phase_info(state)
-        column = jnp.asarray(prob.order)[phase]
-        pick = jax.nn.one_hot(column, len(prob.objectives))
+        pick = jax.nn.one_hot(jnp.asarray(prob.order)[phase], len(prob.objectives))
         # The critics see the whole rollout at once (one batched call, not one per step).
         value, next_value = self.values(state, jnp.stack([rollout.obs, rollout.final_obs]))
         adv_all = ancestral_advantages(rollout.reward, value, next_value, rollout.terminated,
                                        cfg.gamma)
         c = violations(adv_all, jnp.asarray(prob.parents), slack)
         penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
-        beta = jnp.asarray(prob.beta)[phase]
-        advantages, targets = lagrangian_advantages(
-            cfg.advantage, rollout.reward @ pick, value @ pick, next_value @ pick,
-            penalty, beta, rollout.terminated, rollout.done, cfg.gamma, cfg.gae_lambda)
+        advantage, target = lagrangian_advantages(
+            cfg.advantage, rollout.reward @ pick, value @ pick, next_value @ pick, penalty,
+            jnp.asarray(prob.beta)[phase], rollout.terminated, rollout.done, cfg.gamma,
+            cfg.gae_lambda)
+        batch = Batch(rollout.obs, rollout.action, rollout.log_prob, value @ pick, advantage,
+                      target)
+        batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
+        return batch, penalty, state.value_norm.update(target, pick)
 
-        first = state.update == start
-        if cfg.reset_actor:
-            state = state.replace(params={**state.params, "actor": _where_tree(
-                first, state.initial_actor, state.params["actor"])})
-        elif cfg.carry_temperature != 1.0:
-            soften = first & (phase > 0)
-            state = state.replace(params={**state.params, "actor": self._soften(
-                state.params["actor"], jnp.where(soften, 1.0 / cfg.carry_temperature, 1.0))})
-        actor_opt = _where_tree(first, self._actor_tx.init(state.params["actor"]),
-                                state.actor_opt)
-        critic_opt = _where_tree(first, self._critic_tx.init(state.params["critics"]),
-                                 state.critic_opt)
-        progress = (state.update - start) / jnp.asarray(self.policy_updates)[phase]
-        annealed = cfg.learning_rate * ((1.0 - progress) if cfg.anneal_lr else 1.0)
-        lr = (jnp.where(refit, 0.0, annealed), jnp.where(refit, cfg.learning_rate, annealed))
-
-        value_norm = state.value_norm.update(targets, pick)
+    def ppo_epochs(self, state: TrainState, batch: Batch, phase: jax.Array,
+                   value_norm: ValueNorm, lr: jax.Array) -> tuple[TrainState, dict]:
+        """``update_epochs`` passes of minibatch steps over ``batch`` at learning rate
+        ``lr``: the clipped surrogate of the actor and the phase critic's normalised
+        value loss."""
+        cfg = self.config
+        column = jnp.asarray(self.problem.order)[phase]
         mean, std = value_norm.stats()
+        pick = jax.nn.one_hot(column, len(self.problem.objectives))
         scale = (mean @ pick, std @ pick)
-        flat = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]),
-                            (rollout.obs, rollout.action, rollout.log_prob, value @ pick,
-                             advantages, targets))
-        key, k_epochs = jax.random.split(state.key)
-        (params, actor_opt, critic_opt), losses = jax.lax.scan(
-            partial(self._epoch, column=column, lr=lr, scale=scale, data=flat),
-            (state.params, actor_opt, critic_opt), jax.random.split(k_epochs, cfg.update_epochs))
 
+        def minibatch(carry, mb: Batch):
+            params, actor_opt, critic_opt = carry
+            grads, info = jax.grad(self._loss, has_aux=True)(params, mb, column, scale)
+            a_up, actor_opt = self.optimizer.update(grads["actor"], actor_opt)
+            c_up, critic_opt = self.optimizer.update(grads["critics"], critic_opt)
+            params = {"actor": optax.apply_updates(params["actor"], a_up),
+                      "critics": optax.apply_updates(params["critics"], c_up)}
+            return (params, actor_opt, critic_opt), info
+
+        def epoch(carry, key):
+            perm = jax.random.permutation(key, cfg.batch_size)
+            shuffled = jax.tree.map(
+                lambda x: x[perm].reshape(cfg.num_minibatches, -1, *x.shape[1:]), batch)
+            return jax.lax.scan(minibatch, carry, shuffled)
+
+        key, k_epochs = jax.random.split(state.key)
+        carry = (state.params, _with_learning_rate(state.actor_opt, lr),
+                 _with_learning_rate(state.critic_opt, lr))
+        (params, actor_opt, critic_opt), losses = jax.lax.scan(
+            epoch, carry, jax.random.split(k_epochs, cfg.update_epochs))
         state = state.replace(params=params, actor_opt=actor_opt, critic_opt=critic_opt,
                               key=key, update=state.update + 1, value_norm=value_norm)
-        violating = (penalty > 0).mean()
-        metrics = {"phase": phase, "refit": refit, "lr": lr[0], "penalty": penalty.mean(),
-                   "violation_rate": violating, **episodes,
-                   **jax.tree.map(jnp.mean, losses)}
-        return state, metrics
+        return state, losses
 
-    def _soften(self, actor: dict, factor: jax.Array) -> dict:
-        """The actor with its output layer scaled by ``factor`` (logits / temperature)."""
-        mlp = actor["MLP_0"]
-        head = f"Dense_{len(self.config.hidden)}"
-        return {**actor, "MLP_0": {**mlp, head: jax.tree.map(lambda x: x * factor, mlp[head])}}
-
-    def _rollout(self, state: TrainState, greedy: jax.Array
-                 ) -> tuple[TrainState, Rollout, dict]:
-        cfg, env = self.config, self.env
-        actor_p = state.params["actor"]
-
-        def step(carry, key):
-            env_state, obs, ep_ret, ep_len, done_ret, done_len, done_n = carry
-            k_act, k_env = jax.random.split(key)
-            out, log_std = self.actor.apply({"params": actor_p}, obs)
-            action = jnp.where(greedy, mode(out, self.continuous),
-                               sample(k_act, out, log_std, self.continuous))
-            logp = log_prob(out, log_std, action, self.continuous)
-            obs2, env_state, reward, term, trunc, info = jax.vmap(
-                env.step, in_axes=(0, 0, 0, None))(
-                jax.random.split(k_env, cfg.num_envs), env_state, action, env.params)
-            done = term | trunc
-            ep_ret, ep_len = ep_ret + reward, ep_len + 1
-            d = done.astype(jnp.float32)
-            done_ret = done_ret + (ep_ret * d[:, None]).sum(0)
-            done_len = done_len + (ep_len * d).sum()
-            done_n = done_n + d.sum()
-            ep_ret, ep_len = ep_ret * (1 - d[:, None]), ep_len * (1 - d)
-            out = Rollout(obs, action, logp, reward, info["final_obs"],
-                          term.astype(jnp.float32), d)
-            return (env_state, obs2, ep_ret, ep_len, done_ret, done_len, done_n), out
-
-        key, k_roll = jax.random.split(state.key)
-        k = len(self.problem.objectives)
-        init = (state.env_state, state.obs, state.episode_return, state.episode_length,
-                jnp.zeros(k), jnp.zeros(()), jnp.zeros(()))
-        (env_state, obs, ep_ret, ep_len, done_ret, done_len, done_n), rollout = jax.lax.scan(
-            step, init, jax.random.split(k_roll, cfg.num_steps))
-        n = jnp.maximum(done_n, 1.0)
-        episodes = {"episodes": done_n, "episode_return": done_ret / n,
-                    "episode_length": done_len / n}
-        state = state.replace(env_state=env_state, obs=obs, key=key, episode_return=ep_ret,
-                              episode_length=ep_len)
-        return state, rollout, episodes
-
-    def _epoch(self, carry, key, *, column, lr, scale, data):
+    def _loss(self, params: dict, mb: Batch, column: jax.Array,
+              scale: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, dict]:
         cfg = self.config
-        perm = jax.random.permutation(key, cfg.batch_size)
-        shuffled = jax.tree.map(
-            lambda x: x[perm].reshape(cfg.num_minibatches, -1, *x.shape[1:]), data)
-        return jax.lax.scan(partial(self._minibatch, column=column, lr=lr,
-                                    scale=scale), carry, shuffled)
-
-    def _minibatch(self, carry, mb, *, column, lr, scale):
-        cfg = self.config
-        params, actor_opt, critic_opt = carry
-        obs, action, old_logp, old_value, advantages, targets = mb
-
-        def loss_fn(p):
-            out, log_std = self.actor.apply({"params": p["actor"]}, obs)
-            logp = log_prob(out, log_std, action, self.continuous)
-            ent = entropy(out, log_std, self.continuous).mean()
-            pg = clipped_surrogate(logp - old_logp, normalize(advantages), cfg.clip_eps)
-            mean, std = scale
-            out = self.critics.head(p["critics"], column, obs)
-            goal, old = (targets - mean) / std, (old_value - mean) / std
-            vl = (clipped_value_loss(out, old, goal, cfg.clip_eps) if cfg.clip_value
-                  else 0.5 * jnp.mean((out - goal) ** 2))
-            total = pg - cfg.ent_coef * ent + cfg.vf_coef * vl
-            kl = jnp.mean((jnp.exp(logp - old_logp) - 1) - (logp - old_logp))
-            return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent,
-                           "approx_kl": kl}
-
-        grads, info = jax.grad(loss_fn, has_aux=True)(params)
-        a_up, actor_opt = self._actor_tx.update(grads["actor"], actor_opt)
-        c_up, critic_opt = self._critic_tx.update(grads["critics"], critic_opt)
-        actor_lr, critic_lr = lr
-        params = {"actor": optax.apply_updates(params["actor"], jax.tree.map(
-                      lambda u: -actor_lr * u, a_up)),
-                  "critics": optax.apply_updates(params["critics"], jax.tree.map(
-                      lambda u: -critic_lr * u, c_up))}
-        return (params, actor_opt, critic_opt), info
-
-    def values(self, state: TrainState, obs: jax.Array) -> jax.Array:
-        """Every critic's value ``[..., k]`` at ``obs``."""
-        return state.value_norm.denormalize(
-            self.critics.apply({"params": state.params["critics"]}, obs))
+        pi = self.policy(params["actor"], mb.obs)
+        log_ratio = pi.log_prob(mb.action) - mb.log_prob
+        pg = clipped_surrogate(log_ratio, normalize(mb.advantage), cfg.clip_eps)
+        ent = pi.entropy().mean()
+        mean, std = scale
+        value = self.critics.head(params["critics"], column, mb.obs)
+        vl = 0.5 * jnp.mean((value - (mb.target - mean) / std) ** 2)
+        total = pg - cfg.ent_coef * ent + cfg.vf_coef * vl
+        kl = jnp.mean((jnp.exp(log_ratio) - 1) - log_ratio)
+        return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent, "approx_kl": kl}
 
     # ------------------------------------------------------------------- run
     def run(self, state: TrainState, slack: jax.Array, num_updates: int
@@ -373,6 +369,13 @@ def value_bounds(reward_low: np.ndarray, reward_high: np.ndarray, gamma: float) 
     lo, hi = np.asarray(reward_low, float), np.asarray(reward_high, float)
     bound = np.maximum.reduce([np.abs(lo), np.abs(hi), hi - lo]) / (1 - gamma)
     return np.where(np.isfinite(bound) & (bound > 0), bound, 1.0)
+
+
+def _with_learning_rate(opt_state: tuple, lr: jax.Array) -> tuple:
+    """The optimiser state (gradient clipping, then Optax's injected Adam) with
+    Adam's learning rate set to ``lr``."""
+    clip, adam = opt_state
+    return clip, adam._replace(hyperparams={**adam.hyperparams, "learning_rate": lr})
 
 
 def _where_tree(cond: jax.Array, a: Any, b: Any) -> Any:

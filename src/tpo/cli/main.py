@@ -13,17 +13,15 @@ from collections.abc import Sequence
 from itertools import pairwise
 from pathlib import Path
 
+from tpo.algo.config import TPOConfig
+from tpo.cli.options import UsageError, add_fields, read_fields
 from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
 from tpo.errors import TPOError
+from tpo.experiments.runspec import RunSpec
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import LARSolution, solve_lar
 
 EXIT_USAGE = 2
-
-
-class UsageError(TPOError):
-    """A bad command-line argument."""
-
 
 def parse_slack(text: str, option: str = "--slack") -> list[float]:
     """``"0"`` or ``"0,100"`` -> floats (the graph checks sign and count)."""
@@ -95,18 +93,14 @@ def print_solution(name: str, sol: LARSolution, summary: dict) -> None:
 
 
 # -------------------------------------------------------------------- train
-RUN_ARGS = ("map", "dag", "slack", "seed", "steps", "slip", "observation", "env",
-            "objectives")
-
-
 def cmd_train(args: argparse.Namespace) -> int:
     import tomllib
 
     from tqdm import tqdm
 
-    from tpo.experiments import RunSpec, create_run, train_run
+    from tpo.experiments.runs import create_run, train_run
 
-    given = {k: getattr(args, k) for k in RUN_ARGS if getattr(args, k) is not None}
+    given = {**read_fields(args, RunSpec, skip={"config"}), **read_fields(args, TPOConfig)}
     if args.resume:
         if given or args.config or args.out:
             raise UsageError("--resume continues a run with its own config.toml; "
@@ -124,8 +118,6 @@ def cmd_train(args: argparse.Namespace) -> int:
                 settings = tomllib.loads(Path(args.config).read_text())
             except (OSError, tomllib.TOMLDecodeError) as err:
                 raise UsageError(f"cannot read --config {args.config}: {err}") from None
-        if "slack" in given:
-            given["slack"] = parse_slack(given["slack"])
         spec = RunSpec.from_settings({**settings, **given})
         spec.check()  # map, DAG, slack, env and budget, before creating anything
         run_dir = create_run(args.out, spec, force=args.force)
@@ -162,7 +154,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from tpo.experiments.reproduce import Settings, jobs, reproduce
+    from tpo.experiments.paper import Settings
+    from tpo.experiments.reproduce import reproduce
 
     settings = Settings.quick() if args.quick else Settings()
     changes: dict = {}
@@ -187,7 +180,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         changes["workers"] = args.workers
     settings = replace(settings, **changes)
     weights = {p.name: len(xs) * len(settings.seeds) * settings.steps
-               for p, xs in jobs(settings)}
+               for p, xs in settings.jobs()}
     bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True, disable=args.quiet,
                desc="reproduce")
     t0 = time.monotonic()
@@ -196,13 +189,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         bar.update(sum(weights[n] * f for n, f in fractions.items()) - bar.n)
 
     try:
-        records = reproduce(args.out, settings, progress)
+        result = reproduce(args.out, settings, progress)
     finally:
         bar.close()
-    out = Path(args.out)
-    print((out / "report.md").read_text().split("## Direction of each line")[1].strip())
-    print(f"\nfigures, tables and report in {out} ({time.monotonic() - t0:.0f} s; "
-          f"{sum(r['seconds'] for r in records.values()):.0f} s of panel time)")
+    print(f"{result.summary()}; {time.monotonic() - t0:.0f} s in all")
     return 0
 
 
@@ -231,27 +221,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite an existing --plot file")
     p.set_defaults(handler=cmd_solve)
 
-    p = sub.add_parser("train", help="train TPO on a map and write a run directory")
-    p.add_argument("--map", help="bundled map name or TOML file (default home)")
-    p.add_argument("--dag", help='objective DAG (default "M>A>G")')
-    p.add_argument("--slack", help="one slack, or one per edge: 0,100")
-    p.add_argument("--seed", type=int)
-    p.add_argument("--steps", type=int, help="environment steps in all (default 1e6)")
-    p.add_argument("--slip", type=float)
-    p.add_argument("--observation", choices=("factored", "onehot", "coords"))
-    p.add_argument("--env", metavar="PACKAGE:ENV_ID",
-                   help="train on a Gymnasium env with vector rewards instead of a map, "
-                        "e.g. mo-gymnasium:deep-sea-treasure-v0")
-    p.add_argument("--objectives", metavar="A,B,...",
-                   help="names of the --env's reward components, in order")
+    p = sub.add_parser("train", help="train TPO on a map and write a run directory",
+                       description="Train TPO on a map (or a Gymnasium env) into a run "
+                                   "directory. Every option below is also a config.toml key.")
     p.add_argument("--config", metavar="FILE.toml",
-                   help="the same fields, plus any TPOConfig field, from TOML")
+                   help="settings from TOML (the keys are the option names below, with _); "
+                        "options given on the command line win")
     p.add_argument("--out", help="run directory to create")
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
     p.add_argument("--resume", metavar="RUN_DIR",
                    help="continue a run from its last checkpoint (e.g. after a kill)")
     p.add_argument("--episodes", type=int, default=100, help="Monte Carlo episodes")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_fields(p, RunSpec, "problem and budget", skip={"config"})
+    add_fields(p, TPOConfig, "hyperparameters (TPOConfig)")
     p.set_defaults(handler=cmd_train)
 
     p = sub.add_parser("reproduce", help="the paper's Figures 2 and 3, with plots and report")

@@ -13,7 +13,7 @@ from tpo.envs.maps import OBJECTIVES
 
 def nav_reward(avoid: jax.Array, monitor: jax.Array, cell: jax.Array,
                bump: jax.Array) -> jax.Array:
-    """``[goal, avoid, monitor]`` of a step that starts in ``cell`` (DESIGN.md §3):
+    """``[goal, avoid, monitor]`` of a step that starts in ``cell`` (docs/design.md §3):
     goal -1; avoid -1 inside an avoid region, -1 per bump; monitor +1 inside, -1 per bump."""
     in_avoid = avoid[cell[0], cell[1]].astype(jnp.float32)
     in_monitor = monitor[cell[0], cell[1]].astype(jnp.float32)

@@ -21,6 +21,9 @@ Observations (``4 + n_beams`` numbers): the position scaled to ``[0, 1]``,
 
 from __future__ import annotations
 
+from typing import Any
+
+import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -78,8 +81,8 @@ class ContinuousNav(JaxEnv):
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise MapError(f"max_steps must be a positive integer, got {steps!r}")
         self.navmap, self.action, self.max_range = navmap, action, float(max_range)
-        self.num_actions = 8 if action == "heading" else None
-        self.action_dim = 2 if action == "velocity" else None
+        self.action_space = (gym.spaces.Discrete(8) if action == "heading"
+                             else gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self.params = ContinuousParams(
             walls=jnp.asarray(navmap.walls), avoid=jnp.asarray(navmap.avoid_mask),
             monitor=jnp.asarray(navmap.monitor_mask),
@@ -92,6 +95,14 @@ class ContinuousNav(JaxEnv):
     @property
     def obs_shape(self) -> tuple[int]:
         return (4 + int(self.params.beams.shape[0]),)
+
+    def to_spec(self) -> dict[str, Any]:
+        """What rebuilds this env (:func:`tpo.envs.from_spec`); the map travels as
+        TOML text."""
+        return {"kind": "continuous", "map": self.navmap.to_toml(), "action": self.action,
+                "speed": float(self.params.speed), "noise": float(self.params.noise),
+                "n_beams": int(self.params.beams.shape[0]), "max_range": self.max_range,
+                "max_steps": int(self.params.max_steps)}
 
     # ------------------------------------------------------------ pure JAX API
     @staticmethod

@@ -27,6 +27,9 @@ every state, so it does not change what is learned, only how fast.
 
 from __future__ import annotations
 
+from typing import Any
+
+import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -86,6 +89,7 @@ class GridNav(JaxEnv):
     """
 
     num_actions = 4
+    action_space = gym.spaces.Discrete(num_actions)
 
     def __init__(self, navmap: NavMap, slip: float = 0.0, observation: str = "factored",
                  max_steps: int | None = None, random_start: bool = False) -> None:
@@ -110,6 +114,13 @@ class GridNav(JaxEnv):
     @property
     def obs_shape(self) -> tuple[int]:
         return (int(self.params.obs_table.shape[-1]),)
+
+    def to_spec(self) -> dict[str, Any]:
+        """What rebuilds this env (:func:`tpo.envs.from_spec`); the map travels as
+        TOML text."""
+        return {"kind": "grid", "map": self.navmap.to_toml(), "slip": float(self.params.slip),
+                "observation": self.observation, "max_steps": int(self.params.max_steps),
+                "random_start": self.random_start}
 
     # ------------------------------------------------------------ pure JAX API
     @staticmethod

@@ -1,4 +1,4 @@
-"""The exact tabular model of a navigation map (DESIGN.md §3).
+"""The exact tabular model of a navigation map (docs/design.md §3).
 
 States are the map's free cells (row-major), actions up, down, left, right.
 A move into a wall or off the grid is a *bump*: the robot stays. With ``slip``

@@ -109,7 +109,7 @@ class GridNavEnv(NavEnv):
                       random_start=random_start)
         table = np.asarray(env.params.obs_table)
         box = spaces.Box(table.min(), table.max(), env.obs_shape, np.float32)
-        super().__init__(env, box, spaces.Discrete(4), render_mode)
+        super().__init__(env, box, env.action_space, render_mode)
 
     def _robot_position(self) -> np.ndarray:
         return np.asarray(self._state.pos, dtype=float) + 0.5
@@ -124,9 +124,7 @@ class ContinuousNavEnv(NavEnv):
         env = ContinuousNav(load_map(map), action=action, speed=speed, noise=noise,
                             n_beams=n_beams, max_range=max_range, max_steps=max_steps)
         box = spaces.Box(0.0, 1.0, env.obs_shape, np.float32)
-        acts = (spaces.Discrete(8) if action == "heading"
-                else spaces.Box(-1.0, 1.0, (2,), np.float32))
-        super().__init__(env, box, acts, render_mode)
+        super().__init__(env, box, env.action_space, render_mode)
 
     def _jax_action(self, action: Any) -> Any:
         if isinstance(self.action_space, spaces.Discrete):

@@ -1,4 +1,4 @@
-"""Occupancy-grid maps of the navigation domain (paper §V-A, DESIGN.md §3).
+"""Occupancy-grid maps of the navigation domain (paper §V-A, docs/design.md §3).
 
 A map is a TOML file::
 
@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 
 from tpo.errors import MapError
 
@@ -82,11 +83,11 @@ class NavMap:
         rows = ["".join("#" if w else "." for w in row) for row in self.walls]
         for ch, (r, c) in (("S", self.start), ("G", self.goal)):
             rows[r] = rows[r][:c] + ch + rows[r][c + 1:]
-        rects = {k: ", ".join(str(list(r)) for r in v)
-                 for k, v in (("avoid", self.avoid), ("monitor", self.monitor))}
-        return (f'name = "{self.name}"\nmax_steps = {self.max_steps}\n'
-                f'grid = """\n' + "\n".join(rows) + '\n"""\n'
-                f'avoid = [{rects["avoid"]}]\nmonitor = [{rects["monitor"]}]\n')
+        return tomli_w.dumps({"name": self.name, "max_steps": self.max_steps,
+                              "grid": "\n".join(rows) + "\n",
+                              "avoid": [list(map(int, r)) for r in self.avoid],
+                              "monitor": [list(map(int, r)) for r in self.monitor]},
+                             multiline_strings=True)
 
 
 def bundled_maps() -> list[str]:

@@ -20,112 +20,19 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from tpo.algo import TPO, TPOConfig, Trainer
+from tpo.algo import TPO
 from tpo.atomic import write_atomic
-from tpo.envs import load_map
-from tpo.envs.grid import GridNav
-from tpo.errors import TPOError
+from tpo.experiments.runspec import RunError, RunSpec
 
-RUN_DEFAULTS: dict[str, Any] = {"map": "home", "dag": "M>A>G", "slack": [0.0], "seed": 0,
-                                "steps": 1_000_000, "slip": 0.0, "observation": "factored",
-                                "env": "", "objectives": []}
 METRICS = ("episode_return", "episode_length", "penalty", "violation_rate", "policy_loss",
            "value_loss", "entropy", "approx_kl", "lr")
 CHECKPOINTS = 10  # per run, at chunk boundaries
-
-
-class RunError(TPOError):
-    """A run directory that cannot be created, read or resumed."""
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """What one ``tpo train`` run trains: the problem fields and the hyperparameters."""
-
-    map: str
-    dag: str
-    slack: tuple[float, ...]
-    seed: int
-    steps: int
-    slip: float
-    observation: str
-    config: TPOConfig
-    env: str = ""  # a Gymnasium env "PACKAGE:ENV_ID" instead of a map
-    objectives: tuple[str, ...] = ()  # its reward components, in order
-
-    @classmethod
-    def from_settings(cls, settings: dict[str, Any]) -> RunSpec:
-        """Run fields (defaults in :data:`RUN_DEFAULTS`) plus any TPOConfig field."""
-        settings = dict(settings)
-        run = {k: settings.pop(k, v) for k, v in RUN_DEFAULTS.items()}
-        slack = run["slack"]
-        slack = [slack] if isinstance(slack, int | float) else slack
-        try:
-            slack = tuple(float(v) for v in slack)
-        except (TypeError, ValueError):
-            raise RunError(f"slack must be a number or a list of numbers, got {slack!r}"
-                           ) from None
-        for name in ("seed", "steps"):
-            if isinstance(run[name], bool) or not isinstance(run[name], int):
-                raise RunError(f"{name} must be an integer, got {run[name]!r}")
-        objectives = run["objectives"]
-        if isinstance(objectives, str):
-            objectives = [o.strip() for o in objectives.split(",") if o.strip()]
-        if run["env"] and not objectives:
-            raise RunError(f"name the reward components of env '{run['env']}' in order: "
-                           "--objectives a,b,...")
-        return cls(map=str(run["map"]), dag=str(run["dag"]), slack=slack, seed=run["seed"],
-                   steps=run["steps"], slip=float(run["slip"]),
-                   observation=str(run["observation"]), config=TPOConfig.from_dict(settings),
-                   env=str(run["env"]), objectives=tuple(objectives))
-
-    @classmethod
-    def from_toml(cls, path: str | Path) -> RunSpec:
-        try:
-            return cls.from_settings(tomllib.loads(Path(path).read_text()))
-        except (OSError, tomllib.TOMLDecodeError) as err:
-            raise RunError(f"cannot read {path}: {err}") from None
-
-    def to_toml(self) -> str:
-        problem = ({"env": self.env, "objectives": list(self.objectives)} if self.env else
-                   {"map": self.map, "slip": self.slip, "observation": self.observation})
-        fields = {**problem, "dag": self.dag, "slack": list(self.slack), "seed": self.seed,
-                  "steps": self.steps, **self.config.to_dict()}
-        return "".join(f"{k} = {_toml_value(v)}\n" for k, v in fields.items())
-
-    def check(self) -> None:
-        """Raise on anything training would refuse (map, DAG, slack, env, budget),
-        before a run directory is made."""
-        model = self.model()
-        Trainer(model.env, model.graph, self.config, self.steps)
-
-    def model(self) -> TPO:
-        """A fresh (untrained) model of this run; on a map, training starts from
-        random starts."""
-        if self.env:
-            return TPO(self.env, self.dag, slack=list(self.slack), config=self.config,
-                       seed=self.seed, objectives=self.objectives)
-        env = GridNav(load_map(self.map), slip=self.slip, observation=self.observation,
-                      random_start=True)
-        return TPO(env, self.dag, slack=list(self.slack), config=self.config, seed=self.seed)
-
-
-def _toml_value(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    return repr(value)
 
 
 class MetricsLog:

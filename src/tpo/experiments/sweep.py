@@ -17,16 +17,16 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import serialization
 
 from tpo.algo import TPOConfig, Trainer, TrainState
-from tpo.algo.agent import env_spec, make_env
-from tpo.algo.evaluate import episode_returns
+from tpo.algo.evaluate import episode_returns, start_values
+from tpo.algo.persist import restore_state, state_bytes
 from tpo.atomic import write_atomic
 from tpo.envs.grid import GridNav
+from tpo.envs.spec import from_spec
 from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
-from tpo.tabular import evaluate_policy, solve_lar
+from tpo.tabular import solve_lar
 
 
 @dataclass(frozen=True)
@@ -85,7 +85,7 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
              else ObjectiveGraph.parse(dag, first, objectives=env.objectives))
     graphs = [graph.with_slack(s.tolist()) for s in slack_arr]  # checks every slack vector
     trainer = Trainer(env, graph, config, total_timesteps)
-    per_seed = [trainer.init(jax.random.key(s)) for s in seeds]  # outside vmap: DESIGN §6
+    per_seed = [trainer.init(jax.random.key(s)) for s in seeds]  # outside vmap: docs/design.md §5
     states = jax.tree.map(lambda *x: jnp.stack(x), *per_seed)
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(slack_arr), *x.shape)), states)
     length = min(chunk_updates, trainer.num_updates)
@@ -110,40 +110,33 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
 
 
 def _save_states(path: Path, states: TrainState, done: int) -> None:
-    blob = serialization.msgpack_serialize({
-        "done": done, "states": serialization.to_state_dict(
-            states.replace(key=jax.random.key_data(states.key)))})
-    write_atomic(path, blob)
+    write_atomic(path, state_bytes(states, done=done))
 
 
 def _load_states(path: Path, template: TrainState) -> tuple[TrainState, int]:
     try:
-        saved = serialization.msgpack_restore(path.read_bytes())
-        states = serialization.from_state_dict(
-            template.replace(key=jax.random.key_data(template.key)), saved["states"])
+        states, extra = restore_state(template, path.read_bytes())
+        return states, int(extra["done"])
     except (ValueError, KeyError, TypeError) as err:
         raise TPOError(f"{path} is not a checkpoint of this sweep: {err}") from None
-    return states.replace(key=jax.random.wrap_key_data(states.key)), int(saved["done"])
 
 
 def evaluate_sweep(trainer: Trainer, actors: dict, env: GridNav,
                    graphs: Sequence[ObjectiveGraph], slacks: np.ndarray,
                    seeds: tuple[int, ...], episodes: int) -> SweepResult:
     """Exact and Monte Carlo values of ``actors`` (leading axes ``[S, N]``)."""
-    eval_env = make_env(env_spec(env), evaluation=True)
+    eval_env = from_spec(env.to_spec(), evaluation=True)
     gamma = trainer.config.gamma
-    grid = eval_env.tabular(gamma)
+    model = eval_env.tabular(gamma).model
     obs = jnp.asarray(eval_env.tabular_observations())
-    logits = jax.vmap(jax.vmap(lambda p: trainer.actor.apply({"params": p}, obs)[0]))(actors)
+    logits = jax.vmap(jax.vmap(lambda p: trainer.policy(p, obs).logits))(actors)
     policies = np.asarray(logits).argmax(axis=-1)
-    start = grid.model.start
-    exact = np.array([[evaluate_policy(grid.model, pi)[start] for pi in row]
-                      for row in policies])
+    exact = np.array([[start_values(model, pi) for pi in row] for row in policies])
     keys = jax.random.split(jax.random.key(0), episodes)
     mc_run = jax.jit(jax.vmap(jax.vmap(
-        lambda p: episode_returns(trainer, eval_env, p, keys, True, gamma)[1].mean(0))))
+        lambda p: episode_returns(trainer.policy, p, eval_env, keys, True, gamma)[1].mean(0))))
     mc = np.asarray(mc_run(actors), np.float64)
-    solutions = [solve_lar(grid.model, g, relax=True) for g in graphs]
+    solutions = [solve_lar(model, g, relax=True) for g in graphs]
     lar = np.array([[s.start_policy_values()[n] for n in env.objectives] for s in solutions])
     return SweepResult(graphs[0], tuple(env.objectives), slacks, seeds, exact, mc, lar,
                        np.array([s.feasible for s in solutions]), policies)

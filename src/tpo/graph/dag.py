@@ -1,4 +1,4 @@
-"""The objective DAG of a topological MDP (paper §II-C, DESIGN.md §1).
+"""The objective DAG of a topological MDP (paper §II-C, docs/design.md §1).
 
 An :class:`ObjectiveGraph` holds ``k`` named objectives, the edges ``(w, v)``
 ("``w`` constrains ``v``") and one *local* slack ``eta_wv >= 0`` per edge. It is
@@ -20,6 +20,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, Literal, NamedTuple
+
+import tomli_w
 
 from tpo.errors import GraphError
 
@@ -233,8 +235,7 @@ class ObjectiveGraph:
 
     def to_toml(self) -> str:
         """TOML text that :meth:`from_toml` reads back."""
-        slack = ", ".join(repr(float(s)) for s in self.slacks)
-        return f'dag = "{self.spec}"\nslack = [{slack}]\n'
+        return tomli_w.dumps(self.to_dict())
 
     def __str__(self) -> str:
         if not self.edges:

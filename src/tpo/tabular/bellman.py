@@ -1,6 +1,6 @@
 """Shared Bellman machinery of the exact solvers.
 
-Tolerances (DESIGN.md §2): value iteration stops when the value error is
+Tolerances (docs/design.md §2): value iteration stops when the value error is
 provably below ``VI_TOL``; values are then polished by an exact evaluation of
 the greedy policy, so in practice they are exact to ~1e-12. Ties and slack are
 compared with ``ATOL``, far above that error, so tied actions are never lost
@@ -145,7 +145,7 @@ def greedy_with_ties(q: np.ndarray, allowed: np.ndarray, tie_breakers: Sequence[
 
     Among the actions within ``atol`` of the best allowed ``q``, keep those within
     ``atol`` of the best of each tie-breaker in turn (the ancestors' Q-values,
-    roots first), then take the lowest index (DESIGN.md §2).
+    roots first), then take the lowest index (docs/design.md §2).
     """
     keep = allowed & (q >= masked_max(q, allowed)[:, None] - atol)
     for qt in tie_breakers:

@@ -1,4 +1,4 @@
-"""LAR value iteration for any objective DAG (DESIGN.md §2).
+"""LAR value iteration for any objective DAG (docs/design.md §2).
 
 In topological order, objective ``v`` may use at state ``s`` the actions
 
@@ -141,6 +141,6 @@ def solve_lar(model: TabularTMDP, graph: ObjectiveGraph, *, relax: bool = False,
 
 def leaf_policy(graph: ObjectiveGraph, q_values: dict[str, np.ndarray],
                 allowed: dict[str, np.ndarray], atol: float = ATOL) -> np.ndarray:
-    """The leaf's greedy policy with the tie rule of DESIGN.md §2."""
+    """The leaf's greedy policy with the tie rule of docs/design.md §2."""
     ancestors = [q_values[n] for n in graph.order[:-1]]
     return greedy_with_ties(q_values[graph.leaf], allowed[graph.leaf], ancestors, atol)

@@ -1,4 +1,4 @@
-"""A finite multi-objective MDP in a compact, sparse form (DESIGN.md §2).
+"""A finite multi-objective MDP in a compact, sparse form (docs/design.md §2).
 
 Transitions are stored as padded successor lists, not as a dense ``S x A x S``
 array: ``successors[s, a, b]`` is the ``b``-th possible next state of ``(s, a)``

@@ -1,28 +1,25 @@
-"""TPO and plain PPO on any Gymnasium / MO-Gymnasium environment with vector rewards.
+"""Gymnasium / MO-Gymnasium environments with vector rewards, as TPO trains on them.
 
-The environment's copies are stepped on the host in turn; choosing actions is
-jitted, and the update is the JAX path's own :meth:`Trainer.learn`:
-one implementation of the algorithm, two sources of rollouts. The reward
-vector's components are named by the user (``objectives``), in order.
+:class:`HostEnv` steps ``num_envs`` copies of such an env on the host (the
+learner's rollouts come from :class:`tpo.algo.runners.HostRunner`) and describes
+them the way the learner reads an env: ``objectives``, reward bounds,
+``obs_shape`` and ``action_space``. The reward vector's components are named by
+the user (``objectives``), in order.
 
 Observations: ``Box`` (flattened to float32) or ``Discrete`` (one-hot).
-Actions: ``Discrete`` or ``Box`` (Gaussian samples clipped to the bounds).
+Actions: ``Discrete`` or 1-D ``Box`` (Gaussian samples clipped to the bounds).
 """
 
 from __future__ import annotations
 
 import importlib
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from tpo.algo.networks import log_prob, mode, sample
-from tpo.algo.train import Rollout, Trainer, TrainState
 from tpo.errors import TPOError
 
 EnvFactory = Callable[[], gym.Env]
@@ -94,12 +91,13 @@ class HostEnv:
         self._encode, self.obs_shape = _observation_encoder(probe.observation_space,
                                                             self.name)
         space = probe.action_space
+        # The policy's action space: a Discrete space counts from 0 for the policy.
         if isinstance(space, gym.spaces.Discrete):
-            self.num_actions, self.action_dim = int(space.n), None
-            self._action_start = int(space.start)
+            self.action_space: gym.spaces.Space = gym.spaces.Discrete(int(space.n))
+            self._to_env = lambda a: a.astype(np.int64) + int(space.start)
         elif isinstance(space, gym.spaces.Box) and len(space.shape) == 1:
-            self.num_actions, self.action_dim = None, int(space.shape[0])
-            self._low, self._high = space.low, space.high
+            self.action_space = space
+            self._to_env = lambda a: np.clip(a, space.low, space.high)
         else:
             raise EnvError(f"{self.name} has action space {space}: TPO supports "
                            "Discrete and 1-D Box actions")
@@ -109,6 +107,14 @@ class HostEnv:
             if (env.observation_space, env.action_space) != (probe.observation_space, space):
                 raise EnvError(f"copy {i} of {self.name} has other observation or action "
                                "spaces than copy 0")
+
+    def to_spec(self) -> dict[str, Any]:
+        """What rebuilds this env (:func:`tpo.envs.from_spec`): its registered id."""
+        if self.env_id is None:
+            raise TPOError("cannot save a model of a Gymnasium env given as an object or "
+                           "factory: create the model from its id, e.g. "
+                           "TPO('mo-gymnasium:deep-sea-treasure-v0', ...)")
+        return {"kind": "gym", "id": self.env_id, "objectives": list(self.objectives)}
 
     def copy(self, num_envs: int) -> HostEnv:
         """Another set of ``num_envs`` copies of the same env."""
@@ -125,10 +131,7 @@ class HostEnv:
     def step(self, action: np.ndarray) -> tuple[np.ndarray, ...]:
         """``(obs, reward [E, k], terminated, truncated, final_obs)``; ``obs`` is the
         next episode's first observation where an episode ended."""
-        if self.num_actions is not None:
-            action = action.astype(np.int64) + self._action_start
-        else:
-            action = np.clip(action, self._low, self._high)
+        action = self._to_env(action)
         k = len(self.objectives)
         obs, final = [], []
         reward = np.empty((self.num_envs, k), np.float32)
@@ -159,14 +162,6 @@ class HostEnv:
             env.close()
 
 
-def _key_stream(key: jax.Array, block: int = 256) -> Iterator[np.ndarray]:
-    """Endless raw key data from ``key``, split ``block`` at a time (one JAX call
-    per block, not per step)."""
-    while True:
-        key, sub = jax.random.split(key)
-        yield from np.asarray(jax.random.key_data(jax.random.split(sub, block)))
-
-
 def _quiet(make: EnvFactory) -> EnvFactory:
     """``make`` without Gymnasium's warning that a float64 Box bound was cast to
     float32 (MO-Gymnasium's envs declare their reward spaces so: harmless noise
@@ -194,101 +189,27 @@ def _observation_encoder(space: gym.Space, name: str
                    "observations (flatten or wrap others)")
 
 
-class HostRunner:
-    """Runs :class:`Trainer` updates on rollouts stepped on the host."""
-
-    def __init__(self, trainer: Trainer, env: HostEnv) -> None:
-        self.trainer, self.env = trainer, env
-        continuous = trainer.continuous
-
-        def act(actor: dict, obs: jax.Array, key_data: jax.Array, greedy: jax.Array):
-            out, log_std = trainer.actor.apply({"params": actor}, obs)
-            key = jax.random.wrap_key_data(key_data)
-            return jnp.where(greedy, mode(out, continuous),
-                             sample(key, out, log_std, continuous))
-
-        def behaviour_log_prob(actor: dict, obs: jax.Array, action: jax.Array):
-            out, log_std = trainer.actor.apply({"params": actor}, obs)
-            return log_prob(out, log_std, action, continuous)
-
-        # Keys travel as raw key data (NumPy): indexing typed keys on the host costs
-        # an eager JAX dispatch per step; log-probs are computed for the whole
-        # rollout at once, so each step syncs with the device only for the action.
-        self._act = jax.jit(act)
-        self._log_prob = jax.jit(behaviour_log_prob)
-        self._learn = jax.jit(trainer.learn)
-        self._refit = jax.jit(lambda s: trainer.phase_info(s)[2])
-
-    def run(self, state: TrainState, slack: jax.Array, num_updates: int
-            ) -> tuple[TrainState, dict]:
-        """``num_updates`` updates; metrics stacked over them as the JAX path's."""
-        cfg, env = self.trainer.config, self.env
-        k = len(env.objectives)
-        history = []
-        for _ in range(num_updates):
-            greedy = self._refit(state)
-            key, k_roll = jax.random.split(state.key)
-            keys = np.asarray(jax.random.key_data(jax.random.split(k_roll, cfg.num_steps)))
-            obs = np.asarray(state.obs)
-            ep_ret, ep_len = np.asarray(state.episode_return), np.asarray(state.episode_length)
-            done_ret, done_len, done_n = np.zeros(k), 0.0, 0.0
-            steps: list[tuple] = []
-            for t in range(cfg.num_steps):
-                action = np.asarray(self._act(state.params["actor"], obs, keys[t], greedy))
-                nxt, reward, term, trunc, final = env.step(action)
-                if not np.isfinite(reward).all():
-                    env_i, col = np.argwhere(~np.isfinite(reward))[0]
-                    raise EnvError(f"{env.name} returned a non-finite reward "
-                                   f"{reward[env_i, col]} for objective "
-                                   f"'{env.objectives[col]}' at update "
-                                   f"{int(state.update) + 1}, step {t + 1} of its rollout, "
-                                   f"in copy {env_i}")
-                done = (term | trunc).astype(np.float32)
-                ep_ret, ep_len = ep_ret + reward, ep_len + 1
-                done_ret += (ep_ret * done[:, None]).sum(0)
-                done_len += float((ep_len * done).sum())
-                done_n += float(done.sum())
-                ep_ret, ep_len = ep_ret * (1 - done[:, None]), ep_len * (1 - done)
-                steps.append((obs, action, reward, final, term.astype(np.float32), done))
-                obs = nxt
-            o, a, r, f, te, d = (jnp.asarray(np.stack(x)) for x in zip(*steps, strict=True))
-            rollout = Rollout(o, a, self._log_prob(state.params["actor"], o, a), r, f, te, d)
-            n = max(done_n, 1.0)
-            episodes = {"episodes": jnp.float32(done_n),
-                        "episode_return": jnp.asarray(done_ret / n, jnp.float32),
-                        "episode_length": jnp.float32(done_len / n)}
-            state = state.replace(obs=jnp.asarray(obs), key=key,
-                                  episode_return=jnp.asarray(ep_ret, jnp.float32),
-                                  episode_length=jnp.asarray(ep_len, jnp.float32))
-            state, metrics = self._learn(state, slack, rollout, episodes)
-            history.append(metrics)
-        return state, jax.tree.map(lambda *x: jnp.stack(x), *history)
-
-    def monte_carlo(self, actor: dict, episodes: int, greedy: bool, gamma: float,
-                    seed: int) -> dict[str, np.ndarray]:
-        """Returns of ``episodes`` episodes on the runner's env (the same layout as
-        the JAX path's); every copy runs the same number of whole episodes, so short
-        episodes are not over-represented."""
-        env = self.env
-        k, n = len(env.objectives), env.num_envs
-        quota = -(-episodes // n)
-        found: list[list[tuple]] = [[] for _ in range(n)]
-        obs = env.reset(seed)
-        r_acc, d_acc = np.zeros((n, k)), np.zeros((n, k))
-        g_acc, l_acc = np.ones(n), np.zeros(n)
-        keys = _key_stream(jax.random.key(seed))
-        while min(len(f) for f in found) < quota:
-            action = self._act(actor, obs, next(keys), jnp.bool_(greedy))
-            obs, reward, term, trunc, _ = env.step(np.asarray(action))
-            r_acc += reward
-            d_acc += g_acc[:, None] * reward
-            g_acc *= gamma
-            l_acc += 1
-            for i in np.flatnonzero(term | trunc):
-                if len(found[i]) < quota:
-                    found[i].append((r_acc[i].copy(), d_acc[i].copy(), l_acc[i]))
-                r_acc[i], d_acc[i], g_acc[i], l_acc[i] = 0.0, 0.0, 1.0, 0.0
-        runs = [run for f in found for run in f][:episodes]
-        return {"undiscounted": np.array([r[0] for r in runs]),
-                "discounted": np.array([r[1] for r in runs]),
-                "length": np.array([r[2] for r in runs])}
+def host_env(env: str | gym.Env | gym.vector.VectorEnv | EnvFactory,
+             objectives: Sequence[str], num_envs: int) -> HostEnv:
+    """The :class:`HostEnv` of a Gymnasium env given as an id ``"PACKAGE:ENV_ID"``, a
+    ``gym.make``'d env, a factory, or a ``SyncVectorEnv`` (whose copies it steps)."""
+    if isinstance(env, gym.vector.VectorEnv):
+        # Vector wrappers are bypassed: TPO steps the copies and keeps its own statistics.
+        base = env.unwrapped
+        copies, makers = getattr(base, "envs", None), getattr(base, "env_fns", None)
+        if not copies or not makers:
+            raise TPOError(f"{type(base).__name__}: TPO steps a vector env's copies itself, "
+                           "so it takes a SyncVectorEnv (e.g. MO-Gymnasium's "
+                           "MOSyncVectorEnv); or pass the env id or a factory")
+        spec = copies[0].spec
+        return HostEnv(makers[0], objectives, len(copies),
+                       env_id=None if spec is None else registered_name(spec), envs=copies)
+    if isinstance(env, gym.Env):
+        if env.spec is None:
+            raise TPOError("a Gymnasium env object needs a spec (make it with gym.make) "
+                           "or pass a factory: TPO(lambda: MyEnv(), ...)")
+        spec = env.spec
+        return HostEnv(lambda: gym.make(spec, disable_env_checker=True), objectives, num_envs,
+                       env_id=registered_name(spec))
+    return HostEnv(env_factory(env), objectives, num_envs,
+                   env_id=env if isinstance(env, str) else None)

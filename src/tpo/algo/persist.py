@@ -1,0 +1,69 @@
+"""Saving and loading training states: of one model (:class:`tpo.algo.tpo.TPO`) and
+of a stacked sweep (:mod:`tpo.experiments.sweep`).
+
+A state is stored as Flax msgpack of its state dict, with the PRNG key as raw
+key data (typed keys do not serialise). A saved model is a directory, written
+atomically, holding ``model.json`` (format version, config, problem, env spec,
+progress) and ``state.msgpack`` (the whole :class:`~tpo.algo.train.TrainState`:
+parameters, optimiser states, value normalisation, env states, key), so it both
+acts and resumes training exactly where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import jax
+from flax import serialization
+
+from tpo.algo.train import TrainState
+from tpo.atomic import write_dir_atomic
+from tpo.errors import TPOError
+
+FORMAT = 3  # 3: named layers, Optax-injected learning rate, episode statistics
+
+
+def state_bytes(state: TrainState, **extra: Any) -> bytes:
+    """``state`` (and any ``extra`` plain values) as msgpack bytes."""
+    data = serialization.to_state_dict(state.replace(key=jax.random.key_data(state.key)))
+    return serialization.msgpack_serialize({"state": data, **extra})
+
+
+def restore_state(template: TrainState, blob: bytes) -> tuple[TrainState, dict[str, Any]]:
+    """The state of :func:`state_bytes` shaped like ``template``, and the extra
+    values; ``ValueError`` if ``blob`` is not such a state."""
+    try:
+        saved = serialization.msgpack_restore(blob)
+        state = serialization.from_state_dict(
+            template.replace(key=jax.random.key_data(template.key)), saved.pop("state"))
+    except (ValueError, KeyError, TypeError, AttributeError) as err:
+        raise ValueError(str(err)) from None
+    return state.replace(key=jax.random.wrap_key_data(state.key)), saved
+
+
+def save_model(path: str | Path, meta: dict[str, Any], state: TrainState,
+               overwrite: bool = False) -> Path:
+    """Write the model directory ``path`` (atomically)."""
+    try:
+        return write_dir_atomic(path, {"model.json": json.dumps({"format": FORMAT, **meta},
+                                                                indent=2),
+                                       "state.msgpack": state_bytes(state)}, overwrite)
+    except FileExistsError:
+        raise TPOError(f"{path} exists; pass overwrite=True to replace it") from None
+
+
+def read_model(path: str | Path) -> tuple[dict[str, Any], bytes]:
+    """``model.json``'s contents and the state's bytes of a saved model."""
+    path = Path(path)
+    try:
+        meta = json.loads((path / "model.json").read_text())
+        blob = (path / "state.msgpack").read_bytes()
+    except (OSError, json.JSONDecodeError) as err:
+        raise TPOError(f"{path} is not a saved tpo model: {err}") from None
+    found = meta.get("format") if isinstance(meta, dict) else None
+    if found != FORMAT:
+        raise TPOError(f"{path}: unknown model format {found!r} "
+                       f"(this version reads {FORMAT})")
+    return meta, blob

@@ -1,0 +1,124 @@
+"""Two sources of rollouts for one learner: a chunk of updates compiled whole on a
+JAX env, and updates on a Gymnasium env stepped on the host. Both end in
+:meth:`tpo.algo.train.Trainer.learn`: one implementation of the algorithm.
+
+A runner is ``run(state, slack, n, length) -> (state, metrics)``: ``n`` updates,
+metrics stacked over them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from tpo.algo.train import Rollout, Trainer, TrainState
+from tpo.envs.gym_adapter import EnvError, HostEnv
+
+Runner = Callable[[TrainState, jax.Array, int, int], tuple[TrainState, dict]]
+
+
+def jax_runner(trainer: Trainer) -> Runner:
+    """``n`` updates by one jitted program per ``length`` (so a run's shorter last
+    chunk compiles nothing new); metrics of the ``n`` updates."""
+    chunk = jax.jit(trainer.run_chunk, static_argnums=3)
+
+    def run(state: TrainState, slack: jax.Array, n: int, length: int):
+        state, rows = chunk(state, slack, jnp.int32(n), length)
+        return state, jax.tree.map(lambda x: x[:n], rows)
+
+    return run
+
+
+class HostRunner:
+    """Runs :class:`Trainer` updates on rollouts of a :class:`HostEnv`."""
+
+    def __init__(self, trainer: Trainer, env: HostEnv) -> None:
+        self.trainer, self.env = trainer, env
+
+        def act(actor: dict, obs: jax.Array, key_data: jax.Array, greedy: jax.Array):
+            pi = trainer.policy(actor, obs)
+            return jnp.where(greedy, pi.mode(), pi.sample(jax.random.wrap_key_data(key_data)))
+
+        # Keys travel as raw key data (NumPy): indexing typed keys on the host costs
+        # an eager JAX dispatch per step; log-probs are computed for the whole
+        # rollout at once, so each step syncs with the device only for the action.
+        self._act = jax.jit(act)
+        self._log_prob = jax.jit(lambda actor, obs, a: trainer.policy(actor, obs).log_prob(a))
+        self._learn = jax.jit(trainer.learn)
+
+    def __call__(self, state: TrainState, slack: jax.Array, n: int, length: int
+                 ) -> tuple[TrainState, dict]:
+        del length  # nothing is compiled per chunk here
+        history = []
+        for _ in range(n):
+            state, rollout, episodes = self.collect(state)
+            state, metrics = self._learn(state, slack, rollout, episodes)
+            history.append(metrics)
+        return state, jax.tree.map(lambda *x: jnp.stack(x), *history)
+
+    def collect(self, state: TrainState) -> tuple[TrainState, Rollout, dict]:
+        """The host counterpart of :meth:`Trainer.collect`."""
+        cfg, env = self.trainer.config, self.env
+        key, k_roll = jax.random.split(state.key)
+        keys = np.asarray(jax.random.key_data(jax.random.split(k_roll, cfg.num_steps)))
+        obs = np.asarray(state.obs)
+        stats = jax.tree.map(np.asarray, state.episodes.clear())
+        steps: list[tuple] = []
+        for t in range(cfg.num_steps):
+            action = np.asarray(self._act(state.params["actor"], obs, keys[t], False))
+            nxt, reward, term, trunc, final = env.step(action)
+            if not np.isfinite(reward).all():
+                env_i, col = np.argwhere(~np.isfinite(reward))[0]
+                raise EnvError(f"{env.name} returned a non-finite reward "
+                               f"{reward[env_i, col]} for objective '{env.objectives[col]}' "
+                               f"at update {int(state.update) + 1}, step {t + 1} of its "
+                               f"rollout, in copy {env_i}")
+            done = (term | trunc).astype(np.float32)
+            stats = stats.update(reward, done)
+            steps.append((obs, action, reward, final, term.astype(np.float32), done))
+            obs = nxt
+        o, a, r, f, te, d = (jnp.asarray(np.stack(x)) for x in zip(*steps, strict=True))
+        rollout = Rollout(o, a, self._log_prob(state.params["actor"], o, a), r, f, te, d)
+        state = state.replace(obs=jnp.asarray(obs), key=key,
+                              episodes=jax.tree.map(jnp.asarray, stats))
+        return state, rollout, stats.summary()
+
+    def monte_carlo(self, actor: dict, episodes: int, greedy: bool, gamma: float,
+                    seed: int) -> dict[str, np.ndarray]:
+        """Returns of ``episodes`` episodes on the runner's env (the layout of
+        :func:`tpo.algo.evaluate.monte_carlo`); every copy runs the same number of
+        whole episodes, so short episodes are not over-represented."""
+        env = self.env
+        k, n = len(env.objectives), env.num_envs
+        quota = -(-episodes // n)
+        found: list[list[tuple]] = [[] for _ in range(n)]
+        obs = env.reset(seed)
+        r_acc, d_acc = np.zeros((n, k)), np.zeros((n, k))
+        g_acc, l_acc = np.ones(n), np.zeros(n)
+        keys = _key_stream(jax.random.key(seed))
+        while min(len(f) for f in found) < quota:
+            action = self._act(actor, obs, next(keys), jnp.bool_(greedy))
+            obs, reward, term, trunc, _ = env.step(np.asarray(action))
+            r_acc += reward
+            d_acc += g_acc[:, None] * reward
+            g_acc *= gamma
+            l_acc += 1
+            for i in np.flatnonzero(term | trunc):
+                if len(found[i]) < quota:
+                    found[i].append((r_acc[i].copy(), d_acc[i].copy(), l_acc[i]))
+                r_acc[i], d_acc[i], g_acc[i], l_acc[i] = 0.0, 0.0, 1.0, 0.0
+        runs = [run for f in found for run in f][:episodes]
+        return {"undiscounted": np.array([r[0] for r in runs]),
+                "discounted": np.array([r[1] for r in runs]),
+                "length": np.array([r[2] for r in runs])}
+
+
+def _key_stream(key: jax.Array, block: int = 256) -> Iterator[np.ndarray]:
+    """Endless raw key data from ``key``, split ``block`` at a time (one JAX call
+    per block, not per step)."""
+    while True:
+        key, sub = jax.random.split(key)
+        yield from np.asarray(jax.random.key_data(jax.random.split(sub, block)))

@@ -1,0 +1,216 @@
+"""The :class:`TPO` model, in the manner of Stable-Baselines3: ``TPO(env,
+graph).learn(n)``, ``predict``, ``evaluate``, ``save`` / ``TPO.load``."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from tpo.algo.config import TPOConfig
+from tpo.algo.evaluate import exact_values, monte_carlo, summarize
+from tpo.algo.guard import check_finite
+from tpo.algo.persist import read_model, restore_state, save_model
+from tpo.algo.runners import HostRunner, Runner, jax_runner
+from tpo.algo.train import Trainer, TrainState
+from tpo.envs.gym_adapter import EnvFactory, HostEnv
+from tpo.envs.spec import Env, from_spec, make_env
+from tpo.errors import TPOError
+from tpo.graph import ObjectiveGraph
+from tpo.tabular import solve_lar
+
+Callback = Callable[[dict[str, np.ndarray], int], bool | None]
+
+
+class TPO:
+    """Topological policy optimization.
+
+    Args:
+        env: a JAX navigation env (:class:`GridNav`, :class:`ContinuousNav`), a
+            bundled map name or TOML path (a grid with random starts), or a
+            Gymnasium env with vector rewards, stepped on the host: an id
+            ``"PACKAGE:ENV_ID"`` (``"mo-gymnasium:deep-sea-treasure-v0"``), a
+            ``gymnasium.Env`` made by ``gym.make``, a factory of envs, or a
+            ``SyncVectorEnv`` such as MO-Gymnasium's ``MOSyncVectorEnv`` (its
+            copies are stepped, and their number replaces ``config.num_envs``).
+        graph: an :class:`ObjectiveGraph` or a spec string such as ``"M>A>G"``
+            (a single name, e.g. ``"goal"``, is plain PPO).
+        slack: one slack or one per edge (ignored when ``graph`` is a graph).
+        config: hyperparameters.
+        seed: PRNG seed of the parameters, the run and a Gymnasium env's resets.
+        objectives: names of a Gymnasium env's reward components, in order.
+    """
+
+    def __init__(self, env: Env | str | gym.Env | gym.vector.VectorEnv | EnvFactory,
+                 graph: ObjectiveGraph | str, slack: float | list[float] = 0.0,
+                 config: TPOConfig | None = None, seed: int = 0,
+                 objectives: Sequence[str] | None = None) -> None:
+        self.config = config or TPOConfig()
+        self.env = env = make_env(env, objectives, self.config.num_envs)
+        if self.host and env.num_envs != self.config.num_envs:  # a vector env's copies
+            self.config = dataclasses.replace(self.config, num_envs=env.num_envs)
+        self.eval_env = None if self.host else from_spec(env.to_spec(), evaluation=True)
+        if isinstance(graph, str):
+            graph = ObjectiveGraph.parse(graph, slack, objectives=env.objectives)
+        self.graph = graph.bind(env.objectives)
+        self.seed = seed
+        self._fresh_env = False
+        self.state: TrainState | None = None
+        self.trainer: Trainer | None = None
+        self._run: Runner | None = None
+        self.num_timesteps = 0
+
+    @property
+    def host(self) -> bool:
+        """Whether the env is a Gymnasium env stepped on the host."""
+        return isinstance(self.env, HostEnv)
+
+    @property
+    def finished(self) -> bool:
+        """Whether the current training program has run all its updates."""
+        return self.state is not None and self.trainer is not None and \
+            int(self.state.update) >= self.trainer.num_updates
+
+    # ----------------------------------------------------------------- train
+    def learn(self, total_timesteps: int, callback: Callback | None = None,
+              chunk_updates: int = 16) -> TPO:
+        """Train all phases, starting from the current parameters, for
+        ``total_timesteps`` environment steps.
+
+        ``callback(metrics, updates_done)`` is called after every chunk of
+        ``chunk_updates`` updates with that chunk's metrics (arrays over its
+        updates); ``self.state`` is then the state after the chunk, so the
+        callback may :meth:`save` a checkpoint. Returning ``False`` stops training
+        (:meth:`resume` continues it).
+        """
+        trainer = Trainer(self.env, self.graph, self.config, total_timesteps)
+        params = None if self.state is None else self.state.params
+        obs = self.env.reset(self.seed) if self.host else None
+        state = trainer.init(jax.random.key(self.seed), params, obs)
+        if self.state is not None:
+            state = state.replace(value_norm=self.state.value_norm)
+        self.trainer, self.state, self._run = trainer, state, None
+        return self.resume(callback, chunk_updates)
+
+    def resume(self, callback: Callback | None = None, chunk_updates: int = 16) -> TPO:
+        """Continue the current training program (of :meth:`learn`, or of a model
+        saved mid-training) to its end. Chunks stay aligned to multiples of
+        ``chunk_updates``, so a resumed run computes exactly what an uninterrupted
+        one does."""
+        state, trainer = self._need_state(), self._need_trainer()
+        if self.host and self._fresh_env:  # a loaded model: the env's episodes restart
+            state = state.replace(
+                obs=jnp.asarray(self.env.reset(self.seed + int(state.update))),
+                episodes=jax.tree.map(jnp.zeros_like, state.episodes))
+            self._fresh_env = False
+        if self._run is None:
+            self._run = HostRunner(trainer, self.env) if self.host else jax_runner(trainer)
+        slack = trainer.slack_array()
+        done = int(state.update)
+        while done < trainer.num_updates:
+            n = min(chunk_updates - done % chunk_updates, trainer.num_updates - done)
+            new_state, metrics = self._run(state, slack, n,
+                                           min(chunk_updates, trainer.num_updates))
+            metrics = jax.tree.map(np.asarray, metrics)
+            check_finite(new_state.params, metrics, done, self.graph.order)
+            state, done = new_state, done + n
+            self.state = state
+            self.num_timesteps += n * self.config.batch_size
+            if callback is not None and callback(metrics, done) is False:
+                break
+        return self
+
+    def _need_state(self) -> TrainState:
+        if self.state is None:
+            raise TPOError("the model has no parameters yet: call learn() or TPO.load()")
+        return self.state
+
+    def _need_trainer(self) -> Trainer:
+        if self.trainer is None:
+            raise TPOError("the model has no training program yet: call learn() or TPO.load()")
+        return self.trainer
+
+    # ---------------------------------------------------------------- policy
+    def predict(self, obs: np.ndarray, deterministic: bool = True,
+                key: jax.Array | None = None) -> np.ndarray:
+        """Actions for a single observation ``[D]`` or a batch ``[N, D]`` (for a
+        Gymnasium env, also one observation as the env returns it)."""
+        state, trainer = self._need_state(), self._need_trainer()
+        if self.host and np.shape(obs)[-1:] != tuple(self.env.obs_shape):
+            obs = self.env.encode(obs)
+        obs = jnp.asarray(obs, jnp.float32)
+        if obs.shape[-1:] != tuple(self.env.obs_shape):
+            raise TPOError(f"observation has shape {tuple(obs.shape)}, expected "
+                           f"[..., {self.env.obs_shape[0]}]")
+        pi = trainer.policy(state.params["actor"], obs)
+        if deterministic:
+            return np.asarray(pi.mode())
+        return np.asarray(pi.sample(jax.random.key(0) if key is None else key))
+
+    def evaluate(self, episodes: int = 100, seed: int = 0) -> dict[str, Any]:
+        """Monte Carlo returns (undiscounted and discounted, greedy and stochastic,
+        mean and std by objective) and, for grid maps, the exact values of the
+        greedy and stochastic policy beside LAR's solution of the same problem."""
+        state, trainer = self._need_state(), self._need_trainer()
+        gamma, objectives = self.config.gamma, self.env.objectives
+        actor = state.params["actor"]
+        if self.host and self.eval_env is None:
+            self.eval_env = self.env.copy(min(episodes, self.config.num_envs))
+        result: dict[str, Any] = {"mc": {}}
+        for i, greedy in enumerate((True, False)):
+            if self.host:
+                returns = HostRunner(trainer, self.eval_env).monte_carlo(
+                    actor, episodes, greedy, gamma, seed + i)
+            else:
+                returns = monte_carlo(trainer.policy, actor, self.eval_env,
+                                      jax.random.key(seed + i), episodes, greedy, gamma)
+            result["mc"]["greedy" if greedy else "stochastic"] = {
+                "undiscounted": summarize(returns["undiscounted"], objectives),
+                "discounted": summarize(returns["discounted"], objectives),
+                "length": float(returns["length"].mean())}
+        if hasattr(self.eval_env, "tabular"):
+            result["exact"] = exact_values(trainer.policy, actor, self.eval_env, gamma)
+            lar = solve_lar(self.eval_env.tabular(gamma).model, self.graph, relax=True)
+            result["lar"] = {"values": lar.start_values(),
+                             "policy_values": lar.start_policy_values(),
+                             "feasible": lar.feasible}
+        return result
+
+    # ----------------------------------------------------------- persistence
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        """Write the model to the directory ``path`` (atomically: a kill leaves the
+        old directory or none, never a half-written one)."""
+        state, trainer = self._need_state(), self._need_trainer()
+        meta = {"config": self.config.to_dict(), "dag": self.graph.spec,
+                "slack": list(self.graph.slacks), "env": self.env.to_spec(),
+                "seed": self.seed, "num_timesteps": self.num_timesteps,
+                "total_timesteps": trainer.total_timesteps, "updates_done": int(state.update),
+                "num_updates": trainer.num_updates}
+        return save_model(path, meta, state, overwrite)
+
+    @classmethod
+    def load(cls, path: str | Path) -> TPO:
+        """A model saved by :meth:`save`: it acts, and :meth:`resume` finishes its
+        training program if it was saved mid-way."""
+        meta, blob = read_model(path)
+        config = TPOConfig.from_dict(meta["config"])
+        env = from_spec(meta["env"], num_envs=config.num_envs)
+        model = cls(env, meta["dag"], meta["slack"], config, meta["seed"])
+        model._fresh_env = model.host
+        model.trainer = Trainer(model.env, model.graph, model.config, meta["total_timesteps"])
+        blank = (np.zeros((config.num_envs, *model.env.obs_shape), np.float32) if model.host
+                 else None)
+        template = model.trainer.init(jax.random.key(0), obs=blank)
+        try:
+            model.state = restore_state(template, blob)[0]
+        except ValueError as err:
+            raise TPOError(f"{path}/state.msgpack is damaged or does not match "
+                           f"model.json: {err}") from None
+        model.num_timesteps = meta["num_timesteps"]
+        return model

@@ -1,0 +1,64 @@
+"""Environments from what a user names, and from what a saved model records.
+
+- :func:`make_env`: a JAX navigation env, a bundled map name or TOML path (a
+  grid with random starts), or a Gymnasium env with vector rewards (see
+  :func:`tpo.envs.gym_adapter.host_env`).
+- :func:`from_spec`: the env of a spec written by an env's ``to_spec()``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from tpo.envs.continuous import ContinuousNav
+from tpo.envs.grid import GridNav
+from tpo.envs.gym_adapter import EnvFactory, HostEnv, host_env
+from tpo.envs.maps import load_map, parse_map
+from tpo.errors import MapError, TPOError
+
+Env = GridNav | ContinuousNav | HostEnv
+
+
+def make_env(env: Env | str | Path | gym.Env | gym.vector.VectorEnv | EnvFactory,
+             objectives: Sequence[str] | None, num_envs: int) -> Env:
+    """The env a learner trains on. A Gymnasium env (``"PACKAGE:ENV_ID"``, a made
+    env, a factory, a vector env) needs its reward components named in
+    ``objectives``; a map becomes a grid with random starts."""
+    if isinstance(env, Env):
+        return env
+    gym_like = isinstance(env, gym.Env | gym.vector.VectorEnv) or callable(env) or (
+        isinstance(env, str) and ":" in env and not Path(env).exists())
+    if gym_like:
+        if objectives is None:
+            raise TPOError("name the Gymnasium env's reward components in order: "
+                           "objectives=[...]")
+        return host_env(env, objectives, num_envs)
+    try:
+        navmap = load_map(env)
+    except MapError as err:
+        if Path(env).exists():
+            raise
+        raise MapError(f"{err}; a Gymnasium env is named PACKAGE:ENV_ID, e.g. "
+                       "mo-gymnasium:deep-sea-treasure-v0") from None
+    return GridNav(navmap, random_start=True)
+
+
+def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int = 1) -> Env:
+    """The env of ``spec`` (an env's ``to_spec()``); ``evaluation`` drops a grid's
+    random starts; a Gymnasium env gets ``num_envs`` copies."""
+    spec = dict(spec)
+    kind = spec.pop("kind")
+    if kind == "gym":
+        return host_env(spec["id"], spec["objectives"], num_envs)
+    navmap = parse_map(spec.pop("map"))
+    if kind == "grid":
+        if evaluation:
+            spec["random_start"] = False
+        return GridNav(navmap, **spec)
+    if kind == "continuous":
+        return ContinuousNav(navmap, **spec)
+    raise TPOError(f"unknown environment kind '{kind}'")

@@ -1,0 +1,66 @@
+"""The paper's experiments (§V) as data: Figure 2's four panels (a DAG whose
+edges take the x-axis slack), the values its figure shows, and Figure 3's two
+slack settings."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Panel:
+    """One panel of Figure 2: a DAG whose edges ``swept`` take the x-axis slack
+    (the others stay 0)."""
+
+    name: str
+    dag: str
+    swept: tuple[int, ...]
+    xlabel: str
+
+    def slack(self, x: float, n_edges: int) -> list[float]:
+        return [float(x) if e in self.swept else 0.0 for e in range(n_edges)]
+
+
+PANELS = (Panel("a", "M>A>G", (0, 1), r"$\eta_1 = \eta_2$"),
+          Panel("b", "A>M>G", (1,), r"$\eta_2$"),
+          Panel("c", "G>M>A", (0,), r"$\eta_1$"),
+          Panel("d", "A>G, M>G", (0, 1), r"$\eta_1 = \eta_2$"))
+# The paper's Figure 2 values at slack 0 and 100 (its figure source), by panel.
+PAPER = {"a": {"avoid": (-133.65, -311.16), "monitor": (-114.47, -310.06),
+               "goal": (-773.65, -596.74)},
+         "b": {"avoid": (-72.94, -186.35), "monitor": (-65.27, -111.21),
+               "goal": (-738.6, -600.74)},
+         "c": {"avoid": (-364.38, -266.71), "monitor": (-288.76, -237.21),
+               "goal": (-957.6, -957.46)},
+         "d": {"avoid": (-251.67, -519.57), "monitor": (-185.26, -509.55),
+               "goal": (-769.72, -670.23)}}
+FIGURE3 = Panel("fig3", "M>A>G", (0,), r"$\eta_1$")  # slack (0, 0) and (100, 0)
+FIGURE3_SLACKS = (0.0, 100.0)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What ``tpo reproduce`` runs (``steps`` per configuration and seed)."""
+
+    map: str = "home"
+    slacks: tuple[float, ...] = (0, 1, 2, 5, 10, 20, 50, 100)
+    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
+    steps: int = 1_500_000
+    workers: int = 2
+
+    @classmethod
+    def quick(cls) -> Settings:
+        """A small budget that runs end to end in CI (about two minutes)."""
+        return cls(map="small", slacks=(0, 100), seeds=(0, 1), steps=300_000)
+
+    def jobs(self) -> list[tuple[Panel, list[float]]]:
+        """Every panel with its x-axis slack values, Figure 3 last."""
+        return [*[(p, [float(x) for x in self.slacks]) for p in PANELS],
+                (FIGURE3, list(FIGURE3_SLACKS))]
+
+
+def direction(start: float, end: float, scale: float) -> str:
+    """``up``, ``down`` or ``flat`` (a change under 1 % of ``scale`` or 0.5)."""
+    if abs(end - start) <= max(0.5, 0.01 * scale):
+        return "flat"
+    return "up" if end > start else "down"

@@ -1,0 +1,111 @@
+"""What one ``tpo train`` run trains, declared once: every field is a ``tpo train``
+flag (:mod:`tpo.cli.options`) and a ``config.toml`` key. Importing this module
+loads no JAX, so the command line starts fast."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import tomli_w
+
+from tpo.algo.config import TPOConfig
+from tpo.errors import TPOError
+
+if TYPE_CHECKING:
+    from tpo.algo import TPO
+
+
+class RunError(TPOError):
+    """A run directory that cannot be created, read or resumed."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """What one ``tpo train`` run trains: the problem and the budget (every field a
+    ``tpo train`` flag and a ``config.toml`` key), and the hyperparameters."""
+
+    map: str = "home"
+    """bundled map name or TOML file"""
+    dag: str = "M>A>G"
+    """objective DAG, e.g. "M>A>G" or "A>G, M>G" """
+    slack: tuple[float, ...] = (0.0,)
+    """local slack: one value for every edge, or one per edge (0,100)"""
+    seed: int = 0
+    """PRNG seed of the parameters, the run and a Gymnasium env's resets"""
+    steps: int = 1_000_000
+    """environment steps in all"""
+    slip: float = 0.0
+    """probability that a grid move goes in another direction"""
+    observation: str = "factored"
+    """grid observation: factored, onehot or coords"""
+    env: str = ""
+    """a Gymnasium env with vector rewards, PACKAGE:ENV_ID, instead of a map (e.g.
+    mo-gymnasium:deep-sea-treasure-v0)"""
+    objectives: tuple[str, ...] = ()
+    """the --env's reward components, in order (a,b,...)"""
+    config: TPOConfig = field(default_factory=TPOConfig)
+
+    @classmethod
+    def from_settings(cls, settings: dict[str, Any]) -> RunSpec:
+        """Run fields (defaults as declared) plus any TPOConfig field."""
+        settings = dict(settings)
+        run = {f.name: settings.pop(f.name, f.default) for f in fields(cls)
+               if f.name != "config"}
+        slack = run["slack"]
+        slack = [slack] if isinstance(slack, int | float) else slack
+        try:
+            slack = tuple(float(v) for v in slack)
+        except (TypeError, ValueError):
+            raise RunError(f"slack must be a number or a list of numbers, got {slack!r}"
+                           ) from None
+        for name in ("seed", "steps"):
+            if isinstance(run[name], bool) or not isinstance(run[name], int):
+                raise RunError(f"{name} must be an integer, got {run[name]!r}")
+        objectives = run["objectives"]
+        if isinstance(objectives, str):
+            objectives = [o.strip() for o in objectives.split(",") if o.strip()]
+        if run["env"] and not objectives:
+            raise RunError(f"name the reward components of env '{run['env']}' in order: "
+                           "--objectives a,b,...")
+        return cls(map=str(run["map"]), dag=str(run["dag"]), slack=slack, seed=run["seed"],
+                   steps=run["steps"], slip=float(run["slip"]),
+                   observation=str(run["observation"]), env=str(run["env"]),
+                   objectives=tuple(objectives), config=TPOConfig.from_dict(settings))
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> RunSpec:
+        try:
+            return cls.from_settings(tomllib.loads(Path(path).read_text()))
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise RunError(f"cannot read {path}: {err}") from None
+
+    def to_toml(self) -> str:
+        problem = ({"env": self.env, "objectives": list(self.objectives)} if self.env else
+                   {"map": self.map, "slip": self.slip, "observation": self.observation})
+        return tomli_w.dumps({**problem, "dag": self.dag, "slack": list(self.slack),
+                              "seed": self.seed, "steps": self.steps,
+                              **self.config.to_dict()})
+
+    def check(self) -> None:
+        """Raise on anything training would refuse (map, DAG, slack, env, budget),
+        before a run directory is made."""
+        from tpo.algo import Trainer
+
+        model = self.model()
+        Trainer(model.env, model.graph, self.config, self.steps)
+
+    def model(self) -> TPO:
+        """A fresh (untrained) model of this run; on a map, training starts from
+        random starts."""
+        from tpo.algo import TPO
+        from tpo.envs import GridNav, load_map
+
+        if self.env:
+            return TPO(self.env, self.dag, slack=list(self.slack), config=self.config,
+                       seed=self.seed, objectives=self.objectives)
+        env = GridNav(load_map(self.map), slip=self.slip, observation=self.observation,
+                      random_start=True)
+        return TPO(env, self.dag, slack=list(self.slack), config=self.config, seed=self.seed)
