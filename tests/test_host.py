@@ -14,6 +14,7 @@ from tpo.envs.gym_adapter import EnvError, HostEnv
 from tpo.errors import TPOError
 
 SMALL = TPOConfig(num_envs=4, num_steps=16)
+STEPS_SLIDER = 40_000  # 10 of 10 seeds learn the push (measured)
 
 
 class Line(gym.Env):
@@ -166,11 +167,11 @@ def test_models_of_a_made_env_or_a_vector_env_save_and_load_by_registered_name(t
 
 class Slider(gym.Env):
     """A point on [0, 1] pushed by a continuous action in [-1, 1] (x += 0.1 a) until it
-    reaches 1; rewards [time (-1 per step), effort (-a^2)]."""
+    reaches 1; rewards [distance (-(1 - x) after the move), effort (-a^2)]."""
 
     observation_space = gym.spaces.Box(0.0, 1.0, (1,), np.float32)
     action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
-    reward_space = gym.spaces.Box(np.array([-1.0, -1.0]), np.array([-1.0, 0.0]))
+    reward_space = gym.spaces.Box(np.array([-1.0, -1.0]), np.array([0.0, 0.0]))
 
     def reset(self, seed=None, options=None):
         super().reset(seed=seed)
@@ -180,14 +181,21 @@ class Slider(gym.Env):
     def step(self, action):
         a = float(np.clip(action[0], -1.0, 1.0))
         self.x, self.t = min(1.0, max(0.0, self.x + 0.1 * a)), self.t + 1
-        reward = np.array([-1.0, -a * a])
+        reward = np.array([self.x - 1.0, -a * a])
         return np.array([self.x], np.float32), reward, self.x >= 1.0, self.t >= 50, {}
 
 
-def test_plain_ppo_learns_a_continuous_action_host_env():
+@pytest.mark.slow
+def test_plain_ppo_learns_a_continuous_action_host_env(seeds, at_least):
     config = TPOConfig(num_envs=8, num_steps=32, num_minibatches=2)
-    model = TPO(Slider, "time", objectives=["time", "effort"], config=config, seed=0)
-    model.learn(40_000)
-    greedy = model.evaluate(episodes=8)["mc"]["greedy"]
-    assert greedy["length"] <= 12  # a full push takes 10 steps; doing nothing, 50
-    assert model.predict(np.array([0.5], np.float32)).item() > 0.8
+    outcomes, learned = [], []
+    for seed in seeds(5):
+        model = TPO(Slider, "distance", objectives=["distance", "effort"], config=config,
+                    seed=seed)
+        model.learn(STEPS_SLIDER)
+        length = model.evaluate(episodes=8)["mc"]["greedy"]["length"]
+        push = model.predict(np.array([0.5], np.float32)).item()
+        learned.append((length, round(push, 3)))
+        # a full push takes 10 steps; doing nothing, 50
+        outcomes.append(length <= 12 and push > 0.8)
+    at_least(0.8, outcomes, {"(length, push at 0.5)": learned})
