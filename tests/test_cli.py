@@ -161,7 +161,12 @@ def test_train_flags_reach_the_run_config_and_bad_values_are_one_line(tmp_path, 
     capsys.readouterr()
     for args, message in [(["--num-envs", "many"], "bad --num-envs 'many': expected int"),
                           (["--hidden", "64,x"], "bad --hidden '64,x': expected int,..."),
-                          (["--gamma", "1"], "gamma must be in [0, 1), got 1.0")]:
+                          (["--gamma", "1"], "gamma must be in [0, 1), got 1.0"),
+                          (["--slack", "0,,1"], "bad --slack '0,,1': expected number,..."),
+                          (["--observation", "grid"],
+                           "bad --observation 'grid': choose one of factored, onehot, coords"),
+                          (["--beta", "AUTO"], 'beta must be a finite number >= 0 or "auto"'),
+                          (["--env", " "], "bad --env ' ': expected text")]:
         assert main(["train", "--map", "small", "--out", str(tmp_path / "x"), *args]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err

@@ -38,3 +38,14 @@ def test_no_layer_imports_a_higher_one():
         own = rel.parts[0].removesuffix(".py")
         for other in imported_layers(path):
             assert RANK[other] <= RANK[own], f"{rel} ({own}) imports tpo.{other}"
+
+
+def test_lazy_package_names_are_exported_and_load():
+    import tpo.algo
+    import tpo.envs
+    import tpo.experiments
+
+    for package in (tpo.algo, tpo.envs, tpo.experiments):
+        assert set(package._LAZY) <= set(package.__all__) <= set(dir(package))
+        for name in package._LAZY:
+            assert getattr(package, name).__name__ == name

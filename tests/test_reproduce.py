@@ -4,11 +4,13 @@ import json
 
 import numpy as np
 import pytest
+from flax import serialization
 
 from tpo.algo import TPOConfig
 from tpo.cli.main import main
 from tpo.envs import grid_model, load_map
 from tpo.envs.grid import GridNav
+from tpo.errors import TPOError
 from tpo.experiments.paper import PANELS, direction
 from tpo.experiments.sweep import run_sweep
 from tpo.graph import ObjectiveGraph
@@ -53,6 +55,11 @@ def test_a_killed_sweep_resumes_from_its_checkpoint_to_the_same_result(tmp_path)
     assert seen == [6, 8]  # started after update 4
     np.testing.assert_array_equal(resumed.exact, whole.exact)
     np.testing.assert_array_equal(resumed.policies, whole.policies)
+    # A checkpoint of another version (tpo 0.1's had no format) is named, not misread.
+    ckpt.write_bytes(serialization.msgpack_serialize({"done": 4, "states": {}}))
+    with pytest.raises(TPOError, match=r"written by another version of tpo \(format None; "
+                                       r"this version reads \d+\); delete it"):
+        run_sweep(*args, chunk_updates=2, checkpoint=ckpt)
 
 
 @pytest.mark.slow

@@ -109,6 +109,8 @@ def test_config_round_trips_through_toml_text():
     assert TPOConfig.from_toml(config.to_toml()) == config
     with pytest.raises(ConfigError, match="unknown config key"):
         TPOConfig.from_dict({"lr": 1.0})
+    with pytest.raises(ConfigError, match=r"clip_value, critic_refit were removed in tpo 0\.2"):
+        TPOConfig.from_dict({"critic_refit": 0.1, "clip_value": True})
 
 
 def test_softened_warm_start_keeps_greedy_actions_and_raises_entropy(small):

@@ -1,15 +1,19 @@
 """tpo: reinforcement learning with prioritised, slack-tolerant objectives.
 
-Layers (a lower one never imports a higher one)::
+Layers (a lower one never imports a higher one; docs/design.md §4)::
 
-    tpo.graph    objectives, DAG, slack
-    tpo.tabular  exact solvers (LAR, Lagrangian Bellman, evaluation, gradient)
-    tpo.envs     the navigation domain (maps, exact models)
-    tpo.cli      the command line
+    tpo.errors, tpo.atomic  error types; files written whole or not at all
+    tpo.graph               objectives, DAG, slack
+    tpo.tabular             exact solvers (LAR, Lagrangian Bellman, evaluation, gradient)
+    tpo.envs                the navigation domain (maps, exact models, JAX envs) and
+                            Gymnasium adapters
+    tpo.algo                TPO and plain PPO in JAX (the ``TPO`` model)
+    tpo.experiments         run directories, sweeps, the paper's reproduction
+    tpo.cli                 the command line
 """
 
 from tpo.errors import GraphError, InfeasibleError, ModelError, TPOError
 from tpo.graph import ObjectiveGraph
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 __all__ = ["GraphError", "InfeasibleError", "ModelError", "ObjectiveGraph", "TPOError"]

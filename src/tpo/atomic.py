@@ -38,8 +38,9 @@ def write_atomic(path: str | Path, data: str | bytes) -> None:
 def write_dir_atomic(path: str | Path, files: dict[str, str | bytes],
                      overwrite: bool = False) -> Path:
     """Write the directory ``path`` holding ``files`` (name -> contents) through a
-    synced temporary directory and renames: a kill leaves the old directory or
-    the new one, never a half-written one. An existing ``path`` is replaced only
+    synced temporary directory and renames: a kill leaves the old directory, the
+    new one, or (between the two renames, with the old one kept aside) none,
+    never a half-written one. An existing ``path`` is replaced only
     with ``overwrite`` (else :class:`FileExistsError`)."""
     path = Path(path)
     if path.exists() and not overwrite:

@@ -13,6 +13,7 @@ import tomli_w
 from tpo.errors import TPOError
 
 ADVANTAGE_FORMS = ("penalized", "literal")
+REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 
 
 class ConfigError(TPOError):
@@ -51,12 +52,12 @@ class TPOConfig:
     """gradient-norm limit (actor and critics apart)"""
     hidden: tuple[int, ...] = (64, 64)
     """hidden layer widths of the actor and of each critic"""
-    activation: str = "tanh"
+    activation: str = field(default="tanh", metadata={"choices": ("tanh", "relu")})
     """activation of the hidden layers: tanh or relu"""
-    beta: float | str = 10.0
+    beta: float | str = field(default=10.0, metadata={"metavar": "NUMBER|auto"})
     """Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a violation
     of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
-    advantage: str = "penalized"
+    advantage: str = field(default="penalized", metadata={"choices": ADVANTAGE_FORMS})
     """penalized (GAE on the Lagrangian reward) or literal (Eq. 10 as printed);
     see docs/tpo-algorithm.md"""
     phase_fractions: tuple[float, ...] | None = field(default=None)
@@ -89,8 +90,10 @@ class TPOConfig:
         object.__setattr__(self, "hidden", hidden)
         if self.activation not in ("tanh", "relu"):
             raise ConfigError(f"activation must be 'tanh' or 'relu', got {self.activation!r}")
-        if self.beta != "auto":
-            _nonnegative("beta", self.beta)
+        if self.beta != "auto" and (isinstance(self.beta, bool) or not isinstance(
+                self.beta, (int, float)) or not math.isfinite(self.beta) or self.beta < 0):
+            raise ConfigError(f'beta must be a finite number >= 0 or "auto", got '
+                              f"{self.beta!r}")
         _positive("carry_temperature", self.carry_temperature)
         if not isinstance(self.anneal_lr, bool):
             raise ConfigError(f"anneal_lr must be true or false, got {self.anneal_lr!r}")
@@ -122,6 +125,11 @@ class TPOConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TPOConfig:
         known = {f.name for f in fields(cls)}
+        removed = set(data) & REMOVED
+        if removed:
+            raise ConfigError(f"config key(s) {', '.join(sorted(removed))} were removed in tpo "
+                              "0.2 (measured as no help: docs/notes/tpo-learning.md); delete "
+                              "them from the config")
         unknown = set(data) - known
         if unknown:
             raise ConfigError(f"unknown config key(s): {', '.join(sorted(unknown))}")

@@ -21,28 +21,26 @@ from tpo.tabular import TabularTMDP, evaluate_policy, softmax
 Policy = Callable[[Any, jax.Array], Distribution]
 
 
-def start_values(model: TabularTMDP, policy: np.ndarray) -> np.ndarray:
+def policy_start_values(model: TabularTMDP, policy: np.ndarray) -> np.ndarray:
     """Exact discounted values ``[k]`` at the start state of ``policy`` (greedy
     actions ``[S]`` or probabilities ``[S, A]``): the one exact evaluator of a
     learned policy."""
     return evaluate_policy(model, policy)[model.start]
 
 
-def tabular_logits(policy: Policy, params: Any, env: Any) -> np.ndarray:
-    """The policy's logits ``[S, A]`` at every state of ``env``'s tabular model."""
-    obs = jnp.asarray(env.tabular_observations())
-    return np.asarray(policy(params, obs).logits, np.float64)
-
-
 def exact_values(policy: Policy, params: Any, env: Any, gamma: float
                  ) -> dict[str, dict[str, float]]:
     """Exact discounted values at the start state of the greedy and the stochastic
-    policy, by objective: ``{"greedy": {...}, "stochastic": {...}}``."""
+    policy, by objective: ``{"greedy": {...}, "stochastic": {...}}`` (a tabular
+    env's actions are discrete, so the policy is categorical)."""
     model = env.tabular(gamma).model
-    logits = tabular_logits(policy, params, env)
-    return {name: dict(zip(model.objectives, map(float, start_values(model, pi)), strict=True))
-            for name, pi in (("greedy", logits.argmax(axis=1)),
-                             ("stochastic", softmax(logits)))}
+    pi = policy(params, jnp.asarray(env.tabular_observations()))
+    out = {}
+    for name, actions in (("greedy", np.asarray(pi.mode())),
+                          ("stochastic", softmax(np.asarray(pi.logits, np.float64)))):
+        values = policy_start_values(model, actions)
+        out[name] = {n: float(v) for n, v in zip(model.objectives, values, strict=True)}
+    return out
 
 
 def episode_returns(policy: Policy, params: Any, env: Any, keys: jax.Array, greedy: bool,

@@ -78,7 +78,8 @@ class Actor(nn.Module):
 
 
 def scale_output(actor_params: dict, factor: jax.Array) -> dict:
-    """The actor with its output layer scaled by ``factor`` (logits / temperature)."""
+    """The actor with its output layer scaled by ``factor``: a categorical policy's
+    logits divided by a temperature (a Gaussian's mean scaled likewise)."""
     return {**actor_params, "out": jax.tree.map(lambda x: x * factor, actor_params["out"])}
 
 
@@ -132,10 +133,6 @@ class ValueNorm(NamedTuple):
     def denormalize(self, out: jax.Array) -> jax.Array:
         mean, std = self.stats()
         return out * std + mean
-
-    def normalize(self, values: jax.Array) -> jax.Array:
-        mean, std = self.stats()
-        return (values - mean) / std
 
     def update(self, targets: jax.Array, pick: jax.Array, decay: float = 0.9) -> ValueNorm:
         """Fold the batch ``targets`` (of the objective ``pick`` one-hots) into the stats."""

@@ -26,16 +26,20 @@ FORMAT = 3  # 3: named layers, Optax-injected learning rate, episode statistics
 
 
 def state_bytes(state: TrainState, **extra: Any) -> bytes:
-    """``state`` (and any ``extra`` plain values) as msgpack bytes."""
+    """``state`` (and any ``extra`` plain values) as msgpack bytes, with the format."""
     data = serialization.to_state_dict(state.replace(key=jax.random.key_data(state.key)))
-    return serialization.msgpack_serialize({"state": data, **extra})
+    return serialization.msgpack_serialize({"format": FORMAT, "state": data, **extra})
 
 
 def restore_state(template: TrainState, blob: bytes) -> tuple[TrainState, dict[str, Any]]:
     """The state of :func:`state_bytes` shaped like ``template``, and the extra
-    values; ``ValueError`` if ``blob`` is not such a state."""
+    values; ``ValueError`` (saying why) if ``blob`` is not such a state."""
     try:
         saved = serialization.msgpack_restore(blob)
+        found = saved.pop("format", None)
+        if found != FORMAT:
+            raise ValueError(f"written by another version of tpo (format {found!r}; this "
+                             f"version reads {FORMAT})")
         state = serialization.from_state_dict(
             template.replace(key=jax.random.key_data(template.key)), saved.pop("state"))
     except (ValueError, KeyError, TypeError, AttributeError) as err:

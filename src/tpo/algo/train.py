@@ -78,7 +78,6 @@ class Batch(NamedTuple):
     obs: jax.Array
     action: jax.Array
     log_prob: jax.Array
-    value: jax.Array  # V_i(s_t) of the phase's critic, before the update
     advantage: jax.Array
     target: jax.Array
 
@@ -243,7 +242,7 @@ class Trainer:
         phase = self.phase_of(state.update)
         state = self.begin_phase(state, phase)
         batch, penalty, value_norm = self.lagrangian_targets(state, slack, rollout, phase)
-        lr = self.learning_rate(state.update)
+        lr = jnp.asarray(self.learning_rate(state.update), jnp.float32)
         state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr)
         metrics = {"phase": phase, "lr": lr,
                    "penalty": penalty.mean(), "violation_rate": (penalty > 0).mean(),
@@ -282,8 +281,7 @@ class Trainer:
             cfg.advantage, rollout.reward @ pick, value @ pick, next_value @ pick, penalty,
             jnp.asarray(prob.beta)[phase], rollout.terminated, rollout.done, cfg.gamma,
             cfg.gae_lambda)
-        batch = Batch(rollout.obs, rollout.action, rollout.log_prob, value @ pick, advantage,
-                      target)
+        batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantage, target)
         batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
         return batch, penalty, state.value_norm.update(target, pick)
 
@@ -314,8 +312,9 @@ class Trainer:
             return jax.lax.scan(minibatch, carry, shuffled)
 
         key, k_epochs = jax.random.split(state.key)
-        carry = (state.params, _with_learning_rate(state.actor_opt, lr),
-                 _with_learning_rate(state.critic_opt, lr))
+        carry = (state.params,
+                 optax.tree_utils.tree_set(state.actor_opt, learning_rate=lr),
+                 optax.tree_utils.tree_set(state.critic_opt, learning_rate=lr))
         (params, actor_opt, critic_opt), losses = jax.lax.scan(
             epoch, carry, jax.random.split(k_epochs, cfg.update_epochs))
         state = state.replace(params=params, actor_opt=actor_opt, critic_opt=critic_opt,
@@ -369,13 +368,6 @@ def value_bounds(reward_low: np.ndarray, reward_high: np.ndarray, gamma: float) 
     lo, hi = np.asarray(reward_low, float), np.asarray(reward_high, float)
     bound = np.maximum.reduce([np.abs(lo), np.abs(hi), hi - lo]) / (1 - gamma)
     return np.where(np.isfinite(bound) & (bound > 0), bound, 1.0)
-
-
-def _with_learning_rate(opt_state: tuple, lr: jax.Array) -> tuple:
-    """The optimiser state (gradient clipping, then Optax's injected Adam) with
-    Adam's learning rate set to ``lr``."""
-    clip, adam = opt_state
-    return clip, adam._replace(hyperparams={**adam.hyperparams, "learning_rate": lr})
 
 
 def _where_tree(cond: jax.Array, a: Any, b: Any) -> Any:

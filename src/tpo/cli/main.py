@@ -23,6 +23,7 @@ from tpo.tabular import LARSolution, solve_lar
 
 EXIT_USAGE = 2
 
+
 def parse_slack(text: str, option: str = "--slack") -> list[float]:
     """``"0"`` or ``"0,100"`` -> floats (the graph checks sign and count)."""
     try:
@@ -223,7 +224,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train TPO on a map and write a run directory",
                        description="Train TPO on a map (or a Gymnasium env) into a run "
-                                   "directory. Every option below is also a config.toml key.")
+                                   "directory. Every option of the last two groups is also "
+                                   "a config.toml key (with _ for -).")
     p.add_argument("--config", metavar="FILE.toml",
                    help="settings from TOML (the keys are the option names below, with _); "
                         "options given on the command line win")

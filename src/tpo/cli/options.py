@@ -4,7 +4,7 @@ each field is declared once, with the docstring under it, and becomes a flag
 
 Flags are read as text and converted here, so a bad value is one
 ``tpo: error:`` line like every other mistake; the dataclass then checks the
-value's range.
+value's range. A field's ``metadata`` may name its ``choices`` and ``metavar``.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def add_fields(parser: argparse.ArgumentParser, cls: type, title: str,
             group.add_argument(flag(f.name), action=argparse.BooleanOptionalAction,
                                default=None, help=help_text)
         else:
-            group.add_argument(flag(f.name), default=None, metavar=_metavar(hints[f.name]),
+            group.add_argument(flag(f.name), default=None, metavar=_metavar(f, hints[f.name]),
                                help=help_text)
 
 
@@ -75,33 +75,43 @@ def read_fields(args: argparse.Namespace, cls: type, skip: Collection[str] = ()
         value = getattr(args, f.name, None)
         if f.name in skip or value is None:
             continue
-        given[f.name] = value if isinstance(value, bool) else _convert(
-            hints[f.name], value, flag(f.name))
+        given[f.name] = value if isinstance(value, bool) else _convert(f, hints[f.name], value)
     return given
 
 
-def _convert(hint: Any, text: str, name: str) -> Any:
-    parse = _parser(hint)
+def _convert(f: dataclasses.Field, hint: Any, text: str) -> Any:
+    choices = f.metadata.get("choices")
+    if choices is not None and text not in choices:
+        raise UsageError(f"bad {flag(f.name)} '{text}': choose one of {', '.join(choices)}")
     try:
-        return parse(text)
+        return _parser(hint)(text)
     except ValueError:
-        raise UsageError(f"bad {name} '{text}': expected {_metavar(hint).lower()}") from None
+        raise UsageError(f"bad {flag(f.name)} '{text}': expected "
+                         f"{_type_name(hint).lower()}") from None
 
 
 def _parser(hint: Any) -> Callable[[str], Any]:
     args = [a for a in typing.get_args(hint) if a is not types.NoneType]
     if typing.get_origin(hint) is tuple:
         item = _parser(args[0])
-        return lambda text: tuple(item(v.strip()) for v in text.split(",") if v.strip())
+        return lambda text: tuple(item(v.strip()) for v in text.split(","))
     if typing.get_origin(hint) in (types.UnionType, typing.Union):
         if len(args) == 1:
             return _parser(args[0])
         return lambda text: _first_parse([_parser(a) for a in args], text)
     if hint is int:
         return int
-    if hint in (float, str):
-        return hint
+    if hint is float:
+        return float
+    if hint is str:
+        return _nonempty
     raise TypeError(f"no command-line parser for {hint}")
+
+
+def _nonempty(text: str) -> str:
+    if not text.strip():
+        raise ValueError(text)
+    return text.strip()
 
 
 def _first_parse(parsers: list[Callable[[str], Any]], text: str) -> Any:
@@ -113,10 +123,18 @@ def _first_parse(parsers: list[Callable[[str], Any]], text: str) -> Any:
     return parsers[-1](text)
 
 
-def _metavar(hint: Any) -> str:
+def _metavar(f: dataclasses.Field, hint: Any) -> str:
+    if "metavar" in f.metadata:
+        return f.metadata["metavar"]
+    if "choices" in f.metadata:
+        return "{" + ",".join(f.metadata["choices"]) + "}"
+    return _type_name(hint)
+
+
+def _type_name(hint: Any) -> str:
     args = [a for a in typing.get_args(hint) if a is not types.NoneType]
     if typing.get_origin(hint) is tuple:
-        return f"{_metavar(args[0])},..."
+        return f"{_type_name(args[0])},..."
     if typing.get_origin(hint) in (types.UnionType, typing.Union):
-        return "|".join(_metavar(a) for a in args)
+        return "|".join(_type_name(a) for a in args)
     return {int: "INT", float: "NUMBER", str: "TEXT"}[hint]

@@ -18,11 +18,13 @@ _LAZY = {
     "ContinuousNav": "tpo.envs.continuous",
     "GridNavEnv": "tpo.envs.gym_envs",
     "ContinuousNavEnv": "tpo.envs.gym_envs",
+    "make_env": "tpo.envs.spec",
+    "from_spec": "tpo.envs.spec",
 }
 
 __all__ = ["ACTIONS", "OBJECTIVES", "ContinuousNav", "ContinuousNavEnv", "GridModel",
-           "GridNav", "GridNavEnv", "NavMap", "bundled_maps", "grid_model", "load_map",
-           "parse_map", "register_envs"]
+           "GridNav", "GridNavEnv", "NavMap", "bundled_maps", "from_spec", "grid_model",
+           "load_map", "make_env", "parse_map", "register_envs"]
 
 register_envs()
 
@@ -31,3 +33,7 @@ def __getattr__(name: str) -> Any:
     if name in _LAZY:
         return getattr(import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'tpo.envs' has no attribute '{name}'")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])

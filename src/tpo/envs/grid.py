@@ -88,9 +88,6 @@ class GridNav(JaxEnv):
     Rewards are vectors ``[goal, avoid, monitor]``; actions up, down, left, right.
     """
 
-    num_actions = 4
-    action_space = gym.spaces.Discrete(num_actions)
-
     def __init__(self, navmap: NavMap, slip: float = 0.0, observation: str = "factored",
                  max_steps: int | None = None, random_start: bool = False) -> None:
         slip_matrix(slip)  # validates
@@ -104,6 +101,7 @@ class GridNav(JaxEnv):
         free[navmap.goal] = False
         starts = np.argwhere(free) if random_start else np.array([navmap.start])
         self.random_start = random_start
+        self.action_space = gym.spaces.Discrete(len(MOVES))
         self.params = GridParams(
             walls=jnp.asarray(navmap.walls), avoid=jnp.asarray(navmap.avoid_mask),
             monitor=jnp.asarray(navmap.monitor_mask), obs_table=jnp.asarray(table),

@@ -38,7 +38,7 @@ CHECKPOINTS = 10  # per run, at chunk boundaries
 class MetricsLog:
     """Per-update metrics to ``metrics.csv`` and TensorBoard (``tb/``).
 
-    The CSV is appended chunk by chunk; :meth:`open` first cuts it back to the
+    The CSV is appended chunk by chunk; opening the log first cuts it back to the
     rows up to ``last_update`` (those of the checkpoint a resume starts from), so
     rows are never doubled or half-written.
     """

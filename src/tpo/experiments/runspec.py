@@ -39,13 +39,14 @@ class RunSpec:
     """environment steps in all"""
     slip: float = 0.0
     """probability that a grid move goes in another direction"""
-    observation: str = "factored"
+    observation: str = field(default="factored",
+                             metadata={"choices": ("factored", "onehot", "coords")})
     """grid observation: factored, onehot or coords"""
-    env: str = ""
+    env: str = field(default="", metadata={"metavar": "PACKAGE:ENV_ID"})
     """a Gymnasium env with vector rewards, PACKAGE:ENV_ID, instead of a map (e.g.
     mo-gymnasium:deep-sea-treasure-v0)"""
-    objectives: tuple[str, ...] = ()
-    """the --env's reward components, in order (a,b,...)"""
+    objectives: tuple[str, ...] = field(default=(), metadata={"metavar": "NAME,..."})
+    """the --env's reward components, in order"""
     config: TPOConfig = field(default_factory=TPOConfig)
 
     @classmethod

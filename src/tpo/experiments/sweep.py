@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo import TPOConfig, Trainer, TrainState
-from tpo.algo.evaluate import episode_returns, start_values
+from tpo.algo.evaluate import episode_returns, policy_start_values
 from tpo.algo.persist import restore_state, state_bytes
 from tpo.atomic import write_atomic
 from tpo.envs.grid import GridNav
@@ -118,7 +118,8 @@ def _load_states(path: Path, template: TrainState) -> tuple[TrainState, int]:
         states, extra = restore_state(template, path.read_bytes())
         return states, int(extra["done"])
     except (ValueError, KeyError, TypeError) as err:
-        raise TPOError(f"{path} is not a checkpoint of this sweep: {err}") from None
+        raise TPOError(f"{path} is not a checkpoint of this sweep ({err}); delete it to "
+                       "start the sweep again") from None
 
 
 def evaluate_sweep(trainer: Trainer, actors: dict, env: GridNav,
@@ -129,9 +130,8 @@ def evaluate_sweep(trainer: Trainer, actors: dict, env: GridNav,
     gamma = trainer.config.gamma
     model = eval_env.tabular(gamma).model
     obs = jnp.asarray(eval_env.tabular_observations())
-    logits = jax.vmap(jax.vmap(lambda p: trainer.policy(p, obs).logits))(actors)
-    policies = np.asarray(logits).argmax(axis=-1)
-    exact = np.array([[start_values(model, pi) for pi in row] for row in policies])
+    policies = np.asarray(jax.vmap(jax.vmap(lambda p: trainer.policy(p, obs).mode()))(actors))
+    exact = np.array([[policy_start_values(model, pi) for pi in row] for row in policies])
     keys = jax.random.split(jax.random.key(0), episodes)
     mc_run = jax.jit(jax.vmap(jax.vmap(
         lambda p: episode_returns(trainer.policy, p, eval_env, keys, True, gamma)[1].mean(0))))

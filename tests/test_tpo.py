@@ -1,4 +1,4 @@
-"""The SB3-style API: learn, predict, evaluate, save and load."""
+"""The `TPO` model (tpo.algo.tpo), SB3-style: learn, predict, evaluate, save and load."""
 
 import json
 
