@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from tpo.algo.config import TPOConfig
-from tpo.algo.evaluate import exact_values
+from tpo.algo.evaluate import exact_evaluation
 from tpo.algo.train import Trainer
 from tpo.envs import load_map
 from tpo.envs.grid import OBSERVATIONS, GridNav
@@ -50,10 +50,10 @@ def main() -> None:
                     s, t.slack_array(), t.num_updates)))(states)
                 best = solve_lar(eval_env.tabular(config.gamma).model,
                                  graph).start_values()[objective]
-                values = [exact_values(trainer.policy, jax.tree.map(lambda x, i=i: x[i],
-                                                             states.params["actor"]),
-                                       eval_env, config.gamma)["greedy"][objective]
-                          for i in range(args.seeds)]
+                values = [exact_evaluation(
+                    trainer.policy, jax.tree.map(lambda x, i=i: x[i], states.params["actor"]),
+                    eval_env, graph, config.gamma)["exact"]["greedy"][objective]
+                    for i in range(args.seeds)]
                 solved = sum(abs(v - best) <= max(0.5, 0.01 * abs(best)) for v in values)
                 print(f"{objective:<9} {kind:<9} {'random' if random_start else 'fixed':<7} "
                       f"{solved:>3}/{args.seeds:<3} {sum(values) / len(values):8.2f} "

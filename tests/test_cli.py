@@ -82,7 +82,7 @@ def test_train_writes_a_run_directory_and_eval_reads_it(tmp_path, capsys):
     assert [p.name for p in (out / "checkpoints").iterdir()] == ["update-000006"]
     assert any(p.name.startswith("events.out.tfevents") for p in (out / "tb").iterdir())
     result = json.loads((out / "eval.json").read_text())
-    assert set(result) == {"mc", "exact", "lar"}
+    assert set(result) == {"mc", "exact", "lar", "lar_correct", "strict", "same_values", "outside"}
     assert set(result["mc"]["greedy"]["undiscounted"]) == {"goal", "avoid", "monitor"}
     assert result["lar"]["policy_values"]["avoid"] == 0.0
     lines = (out / "metrics.csv").read_text().strip().splitlines()

@@ -73,6 +73,7 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
     rows = (out / "results.csv").read_text().strip().splitlines()
     assert len(rows) == 1 + 5 * 2 * 2 * 3  # (4 panels + figure 3) x 2 slacks x 2 seeds x 3
+    assert rows[0].endswith(",lar_feasible,lar_correct,strict,same_values")
     report = (out / "report.md").read_text()
     assert report.count("| (a) M>A>G |") == 3 and report.count("| (d) A>G, M>G |") == 3
     # LAR's line in the results is the exact solver's, e.g. panel (b) at slack (0, 100).
@@ -85,6 +86,9 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     # Every learned value is an exact value of some policy: within the objectives' range.
     exact = np.array(record["exact"])
     assert exact.shape == (2, 2, 3) and (exact <= 100).all() and (exact >= -200).all()
+    # A strict run is LAR-correct (strict adds a condition).
+    correct, strict = np.array(record["lar_correct"]), np.array(record["strict"])
+    assert correct.shape == strict.shape == (2, 2) and not (strict & ~correct).any()
     # A second run skips every finished panel; other settings are refused.
     before = {p.name: p.stat().st_mtime_ns for p in (out / "panels").iterdir()}
     assert main(["reproduce", "--quick", "--out", str(out), "--quiet"]) == 0

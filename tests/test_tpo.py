@@ -62,7 +62,8 @@ def test_a_model_saved_mid_training_resumes_to_the_same_state(tmp_path):
 
 def test_evaluate_reports_mc_exact_and_lar(model):
     result = model.evaluate(episodes=8)
-    assert set(result) == {"mc", "exact", "lar"}
+    assert set(result) == {"mc", "exact", "lar", "lar_correct", "strict", "same_values", "outside"}
+    assert set(result["lar"]["floors"]) == {"monitor", "avoid"}
     for kind in ("greedy", "stochastic"):
         assert set(result["mc"][kind]["undiscounted"]) == {"goal", "avoid", "monitor"}
         assert set(result["exact"][kind]) == {"goal", "avoid", "monitor"}

@@ -16,31 +16,32 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo.distributions import Distribution
-from tpo.tabular import TabularTMDP, evaluate_policy, softmax
+from tpo.graph import ObjectiveGraph
+from tpo.tabular import Judge, evaluate_policy, softmax, solve_lar
 
 Policy = Callable[[Any, jax.Array], Distribution]
 
 
-def policy_start_values(model: TabularTMDP, policy: np.ndarray) -> np.ndarray:
-    """Exact discounted values ``[k]`` at the start state of ``policy`` (greedy
-    actions ``[S]`` or probabilities ``[S, A]``): the one exact evaluator of a
-    learned policy."""
-    return evaluate_policy(model, policy)[model.start]
-
-
-def exact_values(policy: Policy, params: Any, env: Any, gamma: float
-                 ) -> dict[str, dict[str, float]]:
-    """Exact discounted values at the start state of the greedy and the stochastic
-    policy, by objective: ``{"greedy": {...}, "stochastic": {...}}`` (a tabular
-    env's actions are discrete, so the policy is categorical)."""
+def exact_evaluation(policy: Policy, params: Any, env: Any, graph: ObjectiveGraph,
+                     gamma: float) -> dict[str, Any]:
+    """The exact judgement of a policy on ``env``'s tabular model (a tabular env's
+    actions are discrete, so the policy is categorical): the values at the start
+    state of its greedy and stochastic policies, LAR's solution of the same
+    problem (relaxed if infeasible), and the greedy policy's verdicts
+    (:class:`tpo.tabular.Judge`)."""
     model = env.tabular(gamma).model
     pi = policy(params, jnp.asarray(env.tabular_observations()))
-    out = {}
-    for name, actions in (("greedy", np.asarray(pi.mode())),
-                          ("stochastic", softmax(np.asarray(pi.logits, np.float64)))):
-        values = policy_start_values(model, actions)
-        out[name] = {n: float(v) for n, v in zip(model.objectives, values, strict=True)}
-    return out
+    lar = solve_lar(model, graph, relax=True)
+    verdict = Judge(lar)(np.asarray(pi.mode()))
+    stochastic = evaluate_policy(model, softmax(np.asarray(pi.logits, np.float64)))
+    return {"exact": {"greedy": verdict.values,
+                      "stochastic": dict(zip(model.objectives,
+                                             map(float, stochastic[model.start]), strict=True))},
+            "lar": {"values": lar.start_values(), "policy_values": lar.start_policy_values(),
+                    "feasible": lar.feasible, "floors": verdict.floors},
+            "lar_correct": verdict.lar_correct, "strict": verdict.strict,
+            "same_values": verdict.same_values,
+            "outside": list(verdict.outside)}
 
 
 def episode_returns(policy: Policy, params: Any, env: Any, keys: jax.Array, greedy: bool,

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo.config import TPOConfig
-from tpo.algo.evaluate import exact_values, monte_carlo, summarize
+from tpo.algo.evaluate import exact_evaluation, monte_carlo, summarize
 from tpo.algo.guard import check_finite
 from tpo.algo.persist import read_model, restore_state, save_model
 from tpo.algo.runners import HostRunner, Runner, jax_runner
@@ -23,7 +23,6 @@ from tpo.envs.gym_adapter import EnvFactory, HostEnv
 from tpo.envs.spec import Env, from_spec, make_env
 from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
-from tpo.tabular import solve_lar
 
 Callback = Callable[[dict[str, np.ndarray], int], bool | None]
 
@@ -155,8 +154,10 @@ class TPO:
 
     def evaluate(self, episodes: int = 100, seed: int = 0) -> dict[str, Any]:
         """Monte Carlo returns (undiscounted and discounted, greedy and stochastic,
-        mean and std by objective) and, for grid maps, the exact values of the
-        greedy and stochastic policy beside LAR's solution of the same problem."""
+        mean and std by objective) and, for grid maps, the exact judgement
+        (:func:`tpo.algo.evaluate.exact_evaluation`): exact values of the greedy and
+        stochastic policy, LAR's solution of the same problem, and the verdicts
+        ``lar_correct``, ``strict`` and ``same_values``."""
         state, trainer = self._need_state(), self._need_trainer()
         gamma, objectives = self.config.gamma, self.env.objectives
         actor = state.params["actor"]
@@ -175,11 +176,8 @@ class TPO:
                 "discounted": summarize(returns["discounted"], objectives),
                 "length": float(returns["length"].mean())}
         if hasattr(self.eval_env, "tabular"):
-            result["exact"] = exact_values(trainer.policy, actor, self.eval_env, gamma)
-            lar = solve_lar(self.eval_env.tabular(gamma).model, self.graph, relax=True)
-            result["lar"] = {"values": lar.start_values(),
-                             "policy_values": lar.start_policy_values(),
-                             "feasible": lar.feasible}
+            result.update(exact_evaluation(trainer.policy, actor, self.eval_env, self.graph,
+                                           gamma))
         return result
 
     # ----------------------------------------------------------- persistence

@@ -29,7 +29,7 @@ from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
 from tpo.experiments.paper import Panel, Settings
 from tpo.experiments.pool import report_progress, run_jobs
-from tpo.experiments.report import directions, write_outputs
+from tpo.experiments.report import VERDICTS, directions, write_outputs
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,8 @@ def run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path
     record = {"panel": asdict(panel), "x": xs, "slacks": slacks, "seeds": list(settings.seeds),
               "objectives": list(result.objectives), "exact": result.exact.tolist(),
               "mc": result.mc.tolist(), "lar": result.lar.tolist(),
-              "feasible": result.feasible.tolist(), "matches": result.matches().tolist(),
+              "feasible": result.feasible.tolist(),
+              **{k: getattr(result, k).tolist() for k in VERDICTS},
               "paths": paths, "seconds": time.monotonic() - t0,
               "runs": len(slacks) * len(settings.seeds)}
     write_atomic(out / "panels" / f"{panel.name}.json", json.dumps(record))

@@ -19,14 +19,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo import TPOConfig, Trainer, TrainState
-from tpo.algo.evaluate import episode_returns, policy_start_values
+from tpo.algo.evaluate import episode_returns
 from tpo.algo.persist import restore_state, state_bytes
 from tpo.atomic import write_atomic
 from tpo.envs.grid import GridNav
 from tpo.envs.spec import from_spec
 from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
-from tpo.tabular import solve_lar
+from tpo.tabular import Judge, solve_lar
 
 
 @dataclass(frozen=True)
@@ -40,9 +40,11 @@ class SweepResult:
         seeds: the ``N`` seeds.
         exact: ``[S, N, k]`` exact discounted values of the learned greedy policy.
         mc: ``[S, N, k]`` mean discounted Monte Carlo return of the greedy policy.
-        lar: ``[S, k]`` exact values of LAR's greedy leaf policy.
+        lar: ``[S, k]`` exact values of LAR's leaf policy (the completion).
         feasible: ``[S]`` whether LAR found the problem feasible (else relaxed).
         policies: ``[S, N, n_states]`` the learned greedy actions on the grid model.
+        lar_correct, strict, same_values: ``[S, N]`` the verdicts of
+            :class:`tpo.tabular.Judge` (docs/design.md §6).
     """
 
     graph: ObjectiveGraph
@@ -54,12 +56,9 @@ class SweepResult:
     lar: np.ndarray
     feasible: np.ndarray
     policies: np.ndarray
-
-    def matches(self, rel: float = 0.05, atol: float = 0.5) -> np.ndarray:
-        """``[S, N]``: every objective's exact value within ``max(atol, rel |LAR|)``
-        of LAR's."""
-        tol = np.maximum(atol, rel * np.abs(self.lar))[:, None, :]
-        return np.all(np.abs(self.exact - self.lar[:, None, :]) <= tol, axis=-1)
+    lar_correct: np.ndarray
+    strict: np.ndarray
+    same_values: np.ndarray
 
 
 Progress = Callable[[int, int], None]
@@ -131,12 +130,17 @@ def evaluate_sweep(trainer: Trainer, actors: dict, env: GridNav,
     model = eval_env.tabular(gamma).model
     obs = jnp.asarray(eval_env.tabular_observations())
     policies = np.asarray(jax.vmap(jax.vmap(lambda p: trainer.policy(p, obs).mode()))(actors))
-    exact = np.array([[policy_start_values(model, pi) for pi in row] for row in policies])
+    solutions = [solve_lar(model, g, relax=True) for g in graphs]
+    verdicts = [[judge(pi) for pi in row]
+                for judge, row in zip(map(Judge, solutions), policies, strict=True)]
+    exact = np.array([[[v.values[n] for n in model.objectives] for v in row]
+                      for row in verdicts])
     keys = jax.random.split(jax.random.key(0), episodes)
     mc_run = jax.jit(jax.vmap(jax.vmap(
         lambda p: episode_returns(trainer.policy, p, eval_env, keys, True, gamma)[1].mean(0))))
     mc = np.asarray(mc_run(actors), np.float64)
-    solutions = [solve_lar(model, g, relax=True) for g in graphs]
     lar = np.array([[s.start_policy_values()[n] for n in env.objectives] for s in solutions])
+    flags = {name: np.array([[getattr(v, name) for v in row] for row in verdicts])
+             for name in ("lar_correct", "strict", "same_values")}
     return SweepResult(graphs[0], tuple(env.objectives), slacks, seeds, exact, mc, lar,
-                       np.array([s.feasible for s in solutions]), policies)
+                       np.array([s.feasible for s in solutions]), policies, **flags)

@@ -8,6 +8,7 @@ from tpo.tabular.evaluation import (
     q_values,
     softmax,
 )
+from tpo.tabular.judge import Judge, Verdict, floors, tolerance
 from tpo.tabular.lagrangian import LagrangianSolution, multiplier_bound, solve_lagrangian
 from tpo.tabular.lar import LARSolution, Solution, solve_lar
 from tpo.tabular.model import TabularTMDP
@@ -15,16 +16,20 @@ from tpo.tabular.model import TabularTMDP
 __all__ = [
     "ATOL",
     "VI_TOL",
+    "Judge",
     "LARSolution",
     "LagrangianSolution",
     "Solution",
     "TabularTMDP",
+    "Verdict",
     "discounted_visitation",
     "evaluate_policy",
+    "floors",
     "multiplier_bound",
     "policy_gradient",
     "q_values",
     "softmax",
     "solve_lagrangian",
     "solve_lar",
+    "tolerance",
 ]

@@ -139,15 +139,18 @@ def penalty(model: TabularTMDP, edges: Sequence[Edge], values: Mapping[str, np.n
     return total
 
 
-def greedy_with_ties(q: np.ndarray, allowed: np.ndarray, tie_breakers: Sequence[np.ndarray],
-                     atol: float = ATOL) -> np.ndarray:
-    """The best allowed action of every state, ties broken by ``tie_breakers``.
+def lexicographic_completion(model: TabularTMDP, keep: np.ndarray,
+                             rewards: Sequence[np.ndarray], atol: float = ATOL) -> np.ndarray:
+    """The leaf's policy by the tie rule of docs/design.md §2.
 
-    Among the actions within ``atol`` of the best allowed ``q``, keep those within
-    ``atol`` of the best of each tie-breaker in turn (the ancestors' Q-values,
-    roots first), then take the lowest index (docs/design.md §2).
+    ``keep [S, A]`` holds the leaf's optimal admissible actions. The freedom left
+    goes to the ``rewards [S, A]`` in turn (the ancestors', roots first), each at
+    zero slack: optimise its value over the policies restricted to ``keep``, keep
+    the actions within ``atol`` of its best, go on with the next; then take the
+    lowest index. This is LAR on the chain ``leaf -> root -> ...`` at slack 0, so
+    it optimises whole policies, not one state's Q at a time.
     """
-    keep = allowed & (q >= masked_max(q, allowed)[:, None] - atol)
-    for qt in tie_breakers:
-        keep &= qt >= masked_max(qt, keep)[:, None] - atol
+    for reward in rewards:
+        _, q, _ = restricted_value_iteration(model, reward, keep)
+        keep = keep & (q >= masked_max(q, keep)[:, None] - atol)
     return np.argmax(keep, axis=1)

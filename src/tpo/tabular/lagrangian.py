@@ -18,9 +18,9 @@ import numpy as np
 
 from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph, resolve_name
-from tpo.tabular.bellman import ATOL, greedy_with_ties, penalty, restricted_value_iteration
+from tpo.tabular.bellman import ATOL, penalty, restricted_value_iteration
 from tpo.tabular.evaluation import evaluate_policy
-from tpo.tabular.lar import LARSolution, Solution
+from tpo.tabular.lar import LARSolution, Solution, leaf_policy
 from tpo.tabular.model import TabularTMDP
 
 BetaLike = float | Mapping[str, float | np.ndarray]
@@ -75,8 +75,7 @@ def solve_lagrangian(model: TabularTMDP, graph: ObjectiveGraph, beta: BetaLike,
             model, edges, values, atol)
         values[name], q_values[name], _ = restricted_value_iteration(model, reward, everything)
         betas[name] = b
-    ancestors = [q_values[n] for n in graph.order[:-1]]
-    policy = greedy_with_ties(q_values[graph.leaf], everything, ancestors, atol)
+    policy = leaf_policy(model, graph, q_values[graph.leaf], everything, atol)
     exact = evaluate_policy(model, policy)
     return LagrangianSolution(
         model, graph, values, q_values, policy,

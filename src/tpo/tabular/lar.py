@@ -7,8 +7,9 @@ In topological order, objective ``v`` may use at state ``s`` the actions
 and solves ``V_v(s) = max_{a in A_v(s)} R_v(s, a) + gamma E[V_v(s')]``. By induction
 ``A_v(s)`` is exactly the set of actions with zero total violation
 ``sum_{(w,u) in E_v} C_wu(s, a)`` (paper Prop. 1), which is how it is computed.
-The leaf's greedy policy (ties broken by the ancestors' Q-values, roots first,
-then by the lowest index) is the answer.
+The leaf's greedy policy, its ties settled by the lexicographic completion
+(the ancestors' values over whole policies, roots first, then the lowest
+index), is the answer.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from tpo.errors import InfeasibleError
 from tpo.graph import ObjectiveGraph
 from tpo.tabular.bellman import (
     ATOL,
-    greedy_with_ties,
+    lexicographic_completion,
+    masked_max,
     penalty,
     restricted_value_iteration,
 )
@@ -130,7 +132,7 @@ def solve_lar(model: TabularTMDP, graph: ObjectiveGraph, *, relax: bool = False,
         values[name], q_values[name], iterations[name] = restricted_value_iteration(
             model, reward, ok)
         allowed[name], relaxed[name] = ok, np.flatnonzero(empty)
-    policy = leaf_policy(graph, q_values, allowed, atol)
+    policy = leaf_policy(model, graph, q_values[graph.leaf], allowed[graph.leaf], atol)
     exact = evaluate_policy(model, policy)
     return LARSolution(
         model, graph, values, q_values, policy,
@@ -139,8 +141,11 @@ def solve_lar(model: TabularTMDP, graph: ObjectiveGraph, *, relax: bool = False,
     )
 
 
-def leaf_policy(graph: ObjectiveGraph, q_values: dict[str, np.ndarray],
-                allowed: dict[str, np.ndarray], atol: float = ATOL) -> np.ndarray:
-    """The leaf's greedy policy with the tie rule of docs/design.md §2."""
-    ancestors = [q_values[n] for n in graph.order[:-1]]
-    return greedy_with_ties(q_values[graph.leaf], allowed[graph.leaf], ancestors, atol)
+def leaf_policy(model: TabularTMDP, graph: ObjectiveGraph, q_leaf: np.ndarray,
+                allowed: np.ndarray, atol: float = ATOL) -> np.ndarray:
+    """The leaf's policy: its optimal actions among ``allowed``, ties settled by the
+    lexicographic completion over the ancestors, roots first (docs/design.md §2)."""
+    keep = (allowed & (q_leaf >= masked_max(q_leaf, allowed)[:, None] - atol)) \
+        | model.terminal[:, None]
+    ancestors = [model.rewards[:, :, model.index(n)] for n in graph.order[:-1]]
+    return lexicographic_completion(model, keep, ancestors, atol)

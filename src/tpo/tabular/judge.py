@@ -1,0 +1,121 @@
+"""Judging a policy by the TMDP's own criterion, exactly (docs/design.md §6).
+
+Against a LAR solution (relaxed where the problem is infeasible), a policy is
+
+- **LAR-correct**: the leaf's value at the start is within ``tol`` of ``V*_leaf``,
+  and every ancestor ``w`` keeps at least ``floor_w(s0) - tol``, where ``floor_w``
+  is the least value of ``w`` over all policies that take only the leaf's
+  admissible actions ``A_leaf(s)`` (what LAR guarantees ``w``);
+- **strict**: LAR-correct, and every action it takes in the states it reaches
+  from the start lies in ``A_leaf(s)``;
+- **same values**: every objective of the DAG within ``tol`` of the value of the
+  solver's own policy (the lexicographic completion).
+
+``tol(v) = max(0.02 |v|, 0.5)`` of the reference value ``v``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tpo.tabular.bellman import restricted_value_iteration
+from tpo.tabular.evaluation import evaluate_policy
+from tpo.tabular.lar import LARSolution
+from tpo.tabular.model import TabularTMDP
+
+REL_TOL, ABS_TOL = 0.02, 0.5
+
+
+def tolerance(reference: np.ndarray | float) -> np.ndarray:
+    """``max(0.02 |v|, 0.5)`` of a reference value ``v``."""
+    return np.maximum(REL_TOL * np.abs(reference), ABS_TOL)
+
+
+def floors(solution: LARSolution) -> dict[str, np.ndarray]:
+    """``floor_w [S]`` of every ancestor ``w`` of the leaf: the least value of ``w``
+    over the policies restricted to ``A_leaf`` (a min-value iteration)."""
+    model, graph = solution.model, solution.graph
+    allowed = solution.allowed[graph.leaf]
+    return {w: -restricted_value_iteration(
+        model, -model.rewards[:, :, model.index(w)], allowed)[0] for w in graph.order[:-1]}
+
+
+def reachable(model: TabularTMDP, policy: np.ndarray) -> np.ndarray:
+    """``[S]`` bool: the states a deterministic ``policy`` reaches from the start
+    with positive probability (terminal states included)."""
+    seen = np.zeros(model.n_states, bool)
+    frontier = [model.start]
+    seen[model.start] = True
+    while frontier:
+        s = frontier.pop()
+        if model.terminal[s]:
+            continue
+        a = policy[s]
+        for nxt in model.successors[s, a][model.probs[s, a] > 0]:
+            if not seen[nxt]:
+                seen[nxt] = True
+                frontier.append(int(nxt))
+    return seen
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A policy judged against a LAR solution; values at the start state.
+
+    Attributes:
+        lar_correct, strict, same_values: the three verdicts (module docstring).
+        feasible: whether the problem was feasible (else judged against the
+            relaxed solution).
+        values: the policy's value of every model objective.
+        optimum: ``V*_leaf(s0)``.
+        floors: ``floor_w(s0)`` of every ancestor.
+        reference: the solver's policy's value of every model objective.
+        outside: states on the policy's way from the start where it leaves ``A_leaf``.
+    """
+
+    lar_correct: bool
+    strict: bool
+    same_values: bool
+    feasible: bool
+    values: dict[str, float]
+    optimum: float
+    floors: dict[str, float]
+    reference: dict[str, float]
+    outside: tuple[int, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"lar_correct": self.lar_correct, "strict": self.strict,
+                "same_values": self.same_values, "feasible": self.feasible,
+                "values": self.values, "optimum": self.optimum, "floors": self.floors,
+                "reference": self.reference, "outside": list(self.outside)}
+
+
+class Judge:
+    """Judges policies against one solution (its floors computed once)."""
+
+    def __init__(self, solution: LARSolution) -> None:
+        self.solution = solution
+        start = solution.model.start
+        self.floors = {w: float(f[start]) for w, f in floors(solution).items()}
+
+    def __call__(self, policy: np.ndarray) -> Verdict:
+        """The verdict of a deterministic ``policy [S]`` (greedy actions)."""
+        sol = self.solution
+        model, graph, start = sol.model, sol.graph, sol.model.start
+        policy = np.asarray(policy)
+        values = dict(zip(model.objectives, map(float, evaluate_policy(model, policy)[start]),
+                          strict=True))
+        optimum = float(sol.values[graph.leaf][start])
+        correct = values[graph.leaf] >= optimum - tolerance(optimum) and all(
+            values[w] >= f - tolerance(f) for w, f in self.floors.items())
+        on_way = reachable(model, policy) & ~model.terminal
+        inside = sol.allowed[graph.leaf][np.arange(model.n_states), policy]
+        outside = tuple(int(s) for s in np.flatnonzero(on_way & ~inside))
+        reference = sol.start_policy_values()
+        same = all(abs(values[n] - reference[n]) <= tolerance(reference[n])
+                   for n in graph.objectives)
+        return Verdict(bool(correct), bool(correct and not outside), bool(same), sol.feasible,
+                       values, optimum, self.floors, reference, outside)
