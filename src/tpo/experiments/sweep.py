@@ -117,7 +117,7 @@ def _load_states(path: Path, template: TrainState) -> tuple[TrainState, int]:
         states, extra = restore_state(template, path.read_bytes())
         return states, int(extra["done"])
     except (ValueError, KeyError, TypeError) as err:
-        raise TPOError(f"{path} is not a checkpoint of this sweep ({err}); delete it to "
+        raise TPOError(f"{path} is not a checkpoint of this sweep: {err}; delete it to "
                        "start the sweep again") from None
 
 
