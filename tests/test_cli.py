@@ -77,6 +77,9 @@ def test_train_writes_a_run_directory_and_eval_reads_it(tmp_path, capsys):
     args = ["train", "--map", "small", "--dag", "M>A>G", "--slack", "100,0", "--steps",
             str(3 * 2048 * 2), "--out", str(out), "--episodes", "4", "--quiet"]
     assert main(args) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].split() == ["objective", "learned", "LAR", "V*", "floor"]
+    assert printed[3].startswith("monitor") and printed[5].startswith("LAR-correct: ")
     assert sorted(p.name for p in out.iterdir()) == ["checkpoints", "config.toml", "eval.json",
                                                       "metrics.csv", "model", "tb"]
     assert [p.name for p in (out / "checkpoints").iterdir()] == ["update-000006"]

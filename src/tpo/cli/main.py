@@ -134,11 +134,33 @@ def cmd_train(args: argparse.Namespace) -> int:
         result = train_run(run_dir, episodes=args.episodes, progress=progress)
     finally:
         bar.close()
-    shown = {k: result[k] for k in ("exact", "lar") if k in result} or {
-        "mc greedy": result["mc"]["greedy"]}
-    print(json.dumps(shown, indent=2))
+    print_result(result)
     print(f"run written to {run_dir}")
     return 0
+
+
+def print_result(result: dict) -> None:
+    """The learned greedy policy's values beside LAR's, and the three verdicts (exact,
+    on a map); the greedy Monte Carlo returns elsewhere."""
+    if "exact" not in result:
+        greedy = result["mc"]["greedy"]["discounted"]
+        print(f"{'objective':<10} {'greedy return (discounted, Monte Carlo)':>40}")
+        for name, stats in greedy.items():
+            print(f"{name:<10} {stats['mean']:>31.3f} ± {stats['std']:.3f}")
+        return
+    learned, lar = result["exact"]["greedy"], result["lar"]
+    print(f"{'objective':<10} {'learned':>10} {'LAR':>10} {'V*':>10} {'floor':>10}")
+    for name, value in learned.items():
+        star = lar["values"].get(name)
+        floor = lar["floors"].get(name)
+        print(f"{name:<10} {value:10.3f} {lar['policy_values'][name]:10.3f} "
+              + " ".join(f"{'-' if v is None else f'{v:.3f}':>10}" for v in (star, floor)))
+    verdicts = "; ".join(f"{label}: {'yes' if result[key] else 'no'}" for key, label in (
+        ("lar_correct", "LAR-correct"), ("strict", "strict"), ("same_values", "same values")))
+    print("learned: exact values of the learned greedy policy; LAR: of LAR's policy; V*: each "
+          "objective's own optimum; floor: the least LAR allows an ancestor")
+    relaxed = "" if lar["feasible"] else " (infeasible: judged against the relaxed solution)"
+    print(f"{verdicts}{relaxed}")
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
