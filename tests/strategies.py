@@ -1,11 +1,16 @@
 """Hypothesis strategies: small random TMDPs and DAGs over four objectives."""
 
 import numpy as np
+from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import TabularTMDP
 
+# Solver properties: no deadline (a solve takes milliseconds to seconds); models are
+# filtered (assume) where a property needs a feasible problem.
+SOLVER_SETTINGS = settings(max_examples=60, deadline=None,
+                           suppress_health_check=[HealthCheck.filter_too_much])
 NAMES = ("a", "b", "c", "d")
 SHAPES = {
     "chain": "a>b>c>d",

@@ -3,9 +3,9 @@ worked out by hand, and as properties of random TMDPs."""
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 
-from strategies import graphs, models
+from strategies import SOLVER_SETTINGS, graphs, models
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import Judge, TabularTMDP, solve_lagrangian, solve_lar
 
@@ -70,11 +70,7 @@ def test_a_small_step_outside_the_admissible_set_is_correct_but_not_strict():
     assert not verdict.strict and verdict.outside == (0,)
 
 
-SETTINGS = settings(max_examples=40, deadline=None,
-                    suppress_health_check=[HealthCheck.filter_too_much])
-
-
-@SETTINGS
+@SOLVER_SETTINGS
 @given(models(), graphs())
 def test_the_solvers_own_policy_passes_all_three_and_theorem_1_keeps_it(model, graph):
     sol = solve_lar(model, graph, relax=True)

@@ -3,10 +3,10 @@
 import itertools
 
 import numpy as np
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from strategies import graphs, models
+from strategies import SOLVER_SETTINGS, graphs, models
 from tpo.errors import InfeasibleError
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import (
@@ -17,11 +17,8 @@ from tpo.tabular import (
     solve_lar,
 )
 
-SETTINGS = settings(max_examples=60, deadline=None,
-                    suppress_health_check=[HealthCheck.filter_too_much])
 
-
-@SETTINGS
+@SOLVER_SETTINGS
 @given(models(), graphs())
 def test_action_sets_nest_and_the_leaf_policy_stays_inside(model, graph):
     sol = solve_lar(model, graph, relax=True)
@@ -36,7 +33,7 @@ def test_action_sets_nest_and_the_leaf_policy_stays_inside(model, graph):
     assert leaf[np.arange(model.n_states), sol.policy].all()
 
 
-@SETTINGS
+@SOLVER_SETTINGS
 @given(models(), graphs())
 def test_the_leaf_policy_keeps_every_ancestral_constraint(model, graph):
     try:
@@ -76,7 +73,7 @@ def test_zero_slack_chain_is_the_strict_lexicographic_optimum(model):
     assert np.allclose(got, lexicographic_best(model, graph.order), atol=1e-7)
 
 
-@SETTINGS
+@SOLVER_SETTINGS
 @given(models(), graphs())
 def test_huge_slack_gives_the_leafs_unconstrained_optimum(model, graph):
     sol = solve_lar(model, graph.with_slack(1e6))
@@ -85,7 +82,7 @@ def test_huge_slack_gives_the_leafs_unconstrained_optimum(model, graph):
     assert np.allclose(sol.policy_values[graph.leaf], alone.values[graph.leaf], atol=1e-8)
 
 
-@SETTINGS
+@SOLVER_SETTINGS
 @given(models(), graphs(), st.floats(1.5, 4.0))
 def test_lagrangian_bellman_equals_lar_above_the_bound(model, graph, factor):
     """Theorem 1: with beta_s above the bound of Prop. 2, Eq. 6 solves the LAR problem."""
@@ -102,7 +99,7 @@ def test_lagrangian_bellman_equals_lar_above_the_bound(model, graph, factor):
         assert np.allclose(lag.policy_values[n], lar.policy_values[n], atol=1e-8)
 
 
-@SETTINGS
+@SOLVER_SETTINGS
 @given(models(), st.sampled_from(["a>b>c>d", "d>c>b>a", "b>a>d>c"]))
 def test_chains_are_always_feasible(model, spec):
     assert solve_lar(model, ObjectiveGraph.parse(spec, 0)).feasible
