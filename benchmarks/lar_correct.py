@@ -1,0 +1,67 @@
+"""How often the learner is LAR-correct: problems x seeds on a map, judged exactly.
+
+    python benchmarks/lar_correct.py --map small --steps 600000 --seeds 4
+    python benchmarks/lar_correct.py --map home --problems "M>A>G:5,5" "G>M>A:5,0"
+
+Each problem (``DAG:slack``) trains all its seeds as one vmapped sweep
+(:func:`tpo.experiments.sweep.run_sweep`) and is judged by
+:class:`tpo.tabular.Judge` (docs/design.md §6). Prints one line per problem
+(counts of LAR-correct, strict and same-values seeds, and the mean learned
+values beside LAR's) and the totals, then one JSON line with everything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+from tpo.algo import TPOConfig
+from tpo.envs import load_map
+from tpo.envs.grid import GridNav
+from tpo.experiments.sweep import run_sweep
+
+# The four paper DAGs at slack 0 and 100, and Figure 3's M>A>G (100, 0).
+PROBLEMS = ("M>A>G:0,0", "M>A>G:100,100", "A>M>G:0,0", "A>M>G:0,100", "G>M>A:0,0",
+            "G>M>A:100,0", "A>G, M>G:0,0", "A>G, M>G:100,100", "M>A>G:100,0")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--map", default="small")
+    parser.add_argument("--problems", nargs="+", default=list(PROBLEMS), metavar="DAG:SLACK")
+    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--steps", type=int, default=600_000)
+    args = parser.parse_args()
+    env = GridNav(load_map(args.map), random_start=True)
+    totals = dict.fromkeys(("lar_correct", "strict", "same_values", "runs"), 0)
+    rows = []
+    print(f"{'problem':<22} {'correct':>8} {'strict':>7} {'same':>5}  learned (mean) / LAR")
+    for problem in args.problems:
+        dag, _, slack = problem.rpartition(":")
+        t0 = time.perf_counter()
+        result = run_sweep(env, dag, [[float(v) for v in slack.split(",")]],
+                           list(range(args.seeds)), TPOConfig(), args.steps)
+        counts = {k: int(getattr(result, k)[0].sum()) for k in
+                  ("lar_correct", "strict", "same_values")}
+        for k, v in counts.items():
+            totals[k] += v
+        totals["runs"] += args.seeds
+        learned = result.exact[0].mean(axis=0)
+        pairs = " ".join(f"{n[0]} {v:.1f}/{w:.1f}" for n, v, w in
+                         zip(result.objectives, learned, result.lar[0], strict=True))
+        print(f"{problem:<22} {counts['lar_correct']:>5}/{args.seeds} "
+              f"{counts['strict']:>4}/{args.seeds} {counts['same_values']:>2}/{args.seeds}  "
+              f"{pairs}  {'' if result.feasible[0] else '(infeasible: relaxed) '}"
+              f"{time.perf_counter() - t0:.0f}s", flush=True)
+        rows.append({"problem": problem, **counts, "feasible": bool(result.feasible[0]),
+                     "exact": result.exact[0].tolist(), "lar": result.lar[0].tolist()})
+    n = totals["runs"]
+    print(f"{'total':<22} {totals['lar_correct']:>5}/{n} {totals['strict']:>4}/{n} "
+          f"{totals['same_values']:>2}/{n}")
+    print(json.dumps({"map": args.map, "steps": args.steps, "seeds": args.seeds,
+                      "totals": totals, "problems": rows}))
+
+
+if __name__ == "__main__":
+    main()
