@@ -1,8 +1,9 @@
 """Layer 4: TPO (paper Algorithm 1) and plain PPO, end to end in JAX. Names load on
 first use (``tpo.algo.config`` alone loads no JAX)."""
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from tpo.lazy import lazy_names
 
 if TYPE_CHECKING:  # what type checkers and IDEs see
     from tpo.algo.config import ConfigError, TPOConfig
@@ -18,12 +19,4 @@ _LAZY = {"TPO": "tpo.algo.tpo", "ConfigError": "tpo.algo.config",
 __all__ = ["TPO", "ConfigError", "NonFiniteError", "Problem", "TPOConfig", "TrainState",
            "Trainer"]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'tpo.algo' has no attribute '{name}'")
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_LAZY])
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, globals())

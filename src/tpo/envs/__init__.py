@@ -6,12 +6,10 @@ front ends (:class:`GridNavEnv`, :class:`ContinuousNavEnv`) load on first use.
 Importing this package registers the Gymnasium ids ``tpo/GridNav-home-v0`` etc.
 """
 
-from importlib import import_module
-from typing import Any
-
 from tpo.envs.grid_model import ACTIONS, GridModel, grid_model
 from tpo.envs.maps import OBJECTIVES, NavMap, bundled_maps, load_map, parse_map
 from tpo.envs.registration import register_envs
+from tpo.lazy import lazy_names
 
 _LAZY = {
     "GridNav": "tpo.envs.grid",
@@ -28,12 +26,4 @@ __all__ = ["ACTIONS", "OBJECTIVES", "ContinuousNav", "ContinuousNavEnv", "GridMo
 
 register_envs()
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'tpo.envs' has no attribute '{name}'")
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_LAZY])
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, globals())
