@@ -164,9 +164,10 @@ class TPO:
         if self.host and self.eval_env is None:
             self.eval_env = self.env.copy(min(episodes, self.config.num_envs))
         result: dict[str, Any] = {"mc": {}}
+        runner = HostRunner(trainer, self.eval_env) if self.host else None
         for i, greedy in enumerate((True, False)):
-            if self.host:
-                returns = HostRunner(trainer, self.eval_env).monte_carlo(
+            if runner is not None:
+                returns = runner.monte_carlo(
                     actor, episodes, greedy, gamma, seed + i)
             else:
                 returns = monte_carlo(trainer.policy, actor, self.eval_env,

@@ -17,7 +17,6 @@ Against a LAR solution (relaxed where the problem is infeasible), a policy is
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -86,20 +85,15 @@ class Verdict:
     reference: dict[str, float]
     outside: tuple[int, ...]
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"lar_correct": self.lar_correct, "strict": self.strict,
-                "same_values": self.same_values, "feasible": self.feasible,
-                "values": self.values, "optimum": self.optimum, "floors": self.floors,
-                "reference": self.reference, "outside": list(self.outside)}
-
-
 class Judge:
-    """Judges policies against one solution (its floors computed once)."""
+    """Judges policies against one solution (its references computed once)."""
 
     def __init__(self, solution: LARSolution) -> None:
         self.solution = solution
         start = solution.model.start
         self.floors = {w: float(f[start]) for w, f in floors(solution).items()}
+        self.optimum = float(solution.values[solution.graph.leaf][start])
+        self.reference = solution.start_policy_values()
 
     def __call__(self, policy: np.ndarray) -> Verdict:
         """The verdict of a deterministic ``policy [S]`` (greedy actions)."""
@@ -108,13 +102,12 @@ class Judge:
         policy = np.asarray(policy)
         values = dict(zip(model.objectives, map(float, evaluate_policy(model, policy)[start]),
                           strict=True))
-        optimum = float(sol.values[graph.leaf][start])
+        optimum, reference = self.optimum, self.reference
         correct = values[graph.leaf] >= optimum - tolerance(optimum) and all(
             values[w] >= f - tolerance(f) for w, f in self.floors.items())
         on_way = reachable(model, policy) & ~model.terminal
         inside = sol.allowed[graph.leaf][np.arange(model.n_states), policy]
         outside = tuple(int(s) for s in np.flatnonzero(on_way & ~inside))
-        reference = sol.start_policy_values()
         same = all(abs(values[n] - reference[n]) <= tolerance(reference[n])
                    for n in graph.objectives)
         return Verdict(bool(correct), bool(correct and not outside), bool(same), sol.feasible,
