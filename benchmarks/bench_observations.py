@@ -51,7 +51,8 @@ def main() -> None:
                 best = solve_lar(eval_env.tabular(config.gamma).model,
                                  graph).start_values()[objective]
                 values = [exact_evaluation(
-                    trainer.policy, jax.tree.map(lambda x, i=i: x[i], states.params["actor"]),
+                    trainer.policy, trainer.acting(jax.tree.map(lambda x, i=i: x[i], states),
+                                                   trainer.slack_array()),
                     eval_env, graph, config.gamma)["exact"]["greedy"][objective]
                     for i in range(args.seeds)]
                 solved = sum(abs(v - best) <= max(0.5, 0.01 * abs(best)) for v in values)

@@ -2,6 +2,7 @@
 
     python benchmarks/lar_correct.py --map small --steps 600000 --seeds 4
     python benchmarks/lar_correct.py --map home --problems "M>A>G:5,5" "G>M>A:5,0"
+    python benchmarks/lar_correct.py --set "constraint='penalty'"  # the paper's form
 
 Each problem (``DAG:slack``) trains all its seeds as one vmapped sweep
 (:func:`tpo.experiments.sweep.run_sweep`) and is judged by
@@ -32,7 +33,10 @@ def main() -> None:
     parser.add_argument("--problems", nargs="+", default=list(PROBLEMS), metavar="DAG:SLACK")
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--steps", type=int, default=600_000)
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="TPOConfig fields, as TOML values (constraint='penalty')")
     args = parser.parse_args()
+    config = TPOConfig.from_toml("\n".join(args.set))
     env = GridNav(load_map(args.map), random_start=True)
     totals = dict.fromkeys(("lar_correct", "strict", "same_values", "runs"), 0)
     rows = []
@@ -41,7 +45,7 @@ def main() -> None:
         dag, _, slack = problem.rpartition(":")
         t0 = time.perf_counter()
         result = run_sweep(env, dag, [[float(v) for v in slack.split(",")]],
-                           list(range(args.seeds)), TPOConfig(), args.steps)
+                           list(range(args.seeds)), config, args.steps)
         counts = {k: int(getattr(result, k)[0].sum()) for k in
                   ("lar_correct", "strict", "same_values")}
         for k, v in counts.items():
@@ -60,6 +64,7 @@ def main() -> None:
     print(f"{'total':<22} {totals['lar_correct']:>5}/{n} {totals['strict']:>4}/{n} "
           f"{totals['same_values']:>2}/{n}")
     print(json.dumps({"map": args.map, "steps": args.steps, "seeds": args.seeds,
+                      "config": config.to_dict(),
                       "totals": totals, "problems": rows}))
 
 

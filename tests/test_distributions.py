@@ -21,6 +21,17 @@ def test_categorical_by_hand():
     assert np.mean(np.asarray(draws) == 1) == pytest.approx(0.5, abs=0.03)
 
 
+def test_a_restricted_categorical_renormalises_over_the_allowed_actions():
+    # logits (log 2, log 6, log 2) restricted to {0, 2}: probabilities (1/2, 0, 1/2)
+    pi = Categorical(jnp.log(jnp.array([[2.0, 6.0, 2.0]]))).restrict(
+        jnp.array([[True, False, True]]))
+    assert pi.mode().tolist() == [0]  # the best allowed action, not action 1
+    assert float(pi.log_prob(jnp.array([2]))[0]) == pytest.approx(np.log(0.5), abs=1e-6)
+    assert float(pi.entropy()[0]) == pytest.approx(np.log(2), abs=1e-6)
+    draws = np.asarray(jax.vmap(pi.sample)(jax.random.split(jax.random.key(0), 2000)))
+    assert not (draws == 1).any()
+
+
 def test_diagonal_gaussian_by_hand():
     # mean (1, -1), std (1, e): log N(a) at a = (2, -1) is -1/2 - 1 - log(2 pi)
     pi = DiagGaussian(jnp.array([1.0, -1.0]), jnp.array([0.0, 1.0]))

@@ -4,7 +4,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tpo.algo.lagrangian import ancestral_advantages, lagrangian_advantages, violations
+from tpo.algo.lagrangian import (
+    admissible,
+    ancestral_advantages,
+    lagrangian_advantages,
+    violations,
+)
 from tpo.algo.losses import (
     clipped_surrogate,
     discounted_cumsum,
@@ -61,6 +66,31 @@ def test_ancestral_advantages_and_violations():
     assert np.allclose(c, [1.5, 0.3, 0.0])
 
 
+def test_weights_leave_samples_out_of_the_normalisation_and_the_surrogate():
+    # weights (1, 1, 0): mean 2 and std 1 of (1, 3); the third sample only shifts
+    x = jnp.array([1.0, 3.0, 100.0])
+    w = jnp.array([1.0, 1.0, 0.0])
+    assert np.allclose(normalize(x, w), [-1.0, 1.0, 98.0])
+    log_ratio = jnp.log(jnp.array([0.5, 1.5, 9.0]))
+    adv = jnp.array([1.0, -1.0, 5.0])
+    assert float(clipped_surrogate(log_ratio, adv, 0.2, w)) == pytest.approx(
+        float(clipped_surrogate(log_ratio[:2], adv[:2], 0.2)))
+
+
+def test_admissible_actions_by_hand():
+    # Two constraints, three actions. Violations max(0, -(Q - V) - slack):
+    # c0 (slack 0.6): (0, 0, 1.4); c1 (slack 0): (1, 0, 0). Total (1, 0, 1.4).
+    adv = jnp.array([[0.0, -0.5, -2.0], [-1.0, 0.0, 0.0]])
+    slack = jnp.array([0.6, 0.0])
+    assert admissible(adv, slack, jnp.array([1.0, 1.0])).tolist() == [False, True, False]
+    assert admissible(adv, slack, jnp.array([1.0, 0.0])).tolist() == [True, True, False]
+    assert admissible(adv, slack, jnp.array([0.0, 0.0])).tolist() == [True, True, True]
+    # No action is free of violation: the least total violation is kept (totals
+    # (2, 1, 2)), as the relaxed exact solver does.
+    worse = jnp.array([[-1.0, -0.5, -2.0], [-1.0, -0.5, 0.0]])
+    assert admissible(worse, jnp.zeros(2), jnp.ones(2)).tolist() == [False, True, False]
+
+
 def test_penalized_form_is_gae_on_the_lagrangian_reward():
     # penalty (0, 1, 0), beta 2: rewards (1, 0, 3). delta = (1, -0.25, 1.5);
     # A2 = 1.5, A1 = -0.25 + .25 * 1.5 = 0.125, A0 = 1 + .25 * .125 = 1.03125.
@@ -96,5 +126,5 @@ def test_shape_guards_name_the_mismatched_array():
     with pytest.raises(ValueError, match=r"penalty has shape \(3, 1\)"):
         lagrangian_advantages("penalized", R, V, V_NEXT, jnp.zeros((3, 1)), 1.0, jnp.zeros(3),
                               jnp.zeros(3), 0.5, 0.5)
-    with pytest.raises(ValueError, match="must be \\[n_edges\\] each"):
+    with pytest.raises(ValueError, match="must be \\[C\\] each"):
         violations(jnp.zeros(3), jnp.array([0, 1]), jnp.zeros(3))

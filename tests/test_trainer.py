@@ -7,7 +7,7 @@ import pytest
 
 from tpo.algo.config import ConfigError, TPOConfig
 from tpo.algo.networks import scale_output
-from tpo.algo.train import Trainer
+from tpo.algo.train import Problem, Trainer
 from tpo.envs import OBJECTIVES, load_map
 from tpo.envs.grid import GridNav
 from tpo.experiments.sweep import run_sweep
@@ -40,7 +40,7 @@ def test_later_phases_leave_earlier_critics_frozen(small):
     trainer = Trainer(train_env, graph, TPOConfig(num_envs=4, num_steps=32), 3 * 4 * 32 * 2)
     state = trainer.init(jax.random.key(0))
     run = jax.jit(trainer.run, static_argnums=2)
-    monitor = OBJECTIVES.index("monitor")
+    monitor, goal = 0, 2  # critic heads are phases, in topological order
     after_first, _ = run(state, trainer.slack_array(), int(trainer.phase_start[1]))
     final, metrics = run(after_first, trainer.slack_array(),
                          trainer.num_updates - int(trainer.phase_start[1]))
@@ -49,12 +49,51 @@ def test_later_phases_leave_earlier_critics_frozen(small):
     assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(head),
                                                     jax.tree.leaves(later), strict=True))
     assert np.asarray(metrics["phase"]).tolist() == [1, 1, 2, 2]
-    goal = OBJECTIVES.index("goal")
     first_goal = jax.tree.map(lambda x: x[goal], after_first.params["critics"])
     trained_goal = jax.tree.map(lambda x: x[goal], final.params["critics"])
     assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first_goal),
                                                         jax.tree.leaves(trained_goal),
                                                         strict=True))
+
+
+def test_the_restriction_form_adds_completion_phases_at_zero_slack():
+    low, high = np.full(3, -1.0), np.ones(3)
+    chain = Problem.build(ObjectiveGraph.parse("M>A>G", [1, 2], objectives=OBJECTIVES),
+                          OBJECTIVES, TPOConfig(), low, high, completion=True)
+    m, a, g = (OBJECTIVES.index(n) for n in ("monitor", "avoid", "goal"))
+    assert chain.reward.tolist() == [m, a, g, m, a]  # then the leaf's ancestors, roots first
+    assert chain.phase_names[3:] == ("monitor (completion)", "avoid (completion)")
+    # constraints: edge M->A on head 0, edge A->G on head 1, the leaf (head 2) and the
+    # first completion phase (head 3) at zero slack (index n_edges = 2)
+    assert chain.head.tolist() == [0, 1, 2, 3]
+    assert chain.slack_index.tolist() == [0, 1, 2, 2]
+    assert chain.active.tolist() == [[0, 0, 0, 0], [1, 0, 0, 0], [1, 1, 0, 0],
+                                     [1, 1, 1, 0], [1, 1, 1, 1]]
+    fan = Problem.build(ObjectiveGraph.parse("A>G, M>G", objectives=OBJECTIVES),
+                        OBJECTIVES, TPOConfig(), low, high, completion=True)
+    assert fan.reward.tolist() == [a, m, g, a, m]
+    assert fan.active.tolist() == [[0, 0, 0, 0], [0, 0, 0, 0], [1, 1, 0, 0],
+                                   [1, 1, 1, 0], [1, 1, 1, 1]]
+    paper = Problem.build(ObjectiveGraph.parse("M>A>G", objectives=OBJECTIVES),
+                          OBJECTIVES, TPOConfig(), low, high, completion=False)
+    assert paper.reward.tolist() == [m, a, g] and paper.head.tolist() == [0, 1]
+
+
+def test_restricted_rollouts_act_within_the_admissible_actions(small):
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("A>G", 0, objectives=OBJECTIVES)
+    config = TPOConfig(num_envs=8, num_steps=64, constraint="restriction", explore=0.25)
+    trainer = Trainer(train_env, graph, config, 3 * config.batch_size * 3)
+    assert trainer.restricts and trainer.problem.n_phases == 3
+    state = trainer.init(jax.random.key(0))
+    state, _ = jax.jit(trainer.run, static_argnums=2)(state, trainer.slack_array(), 4)
+    state = trainer.begin_phase(state)
+    _, rollout, _ = trainer.collect(state, trainer.slack_array())
+    allowed = np.asarray(rollout.allowed)
+    taken = np.take_along_axis(allowed, np.asarray(rollout.action)[..., None], -1)
+    assert taken.all()
+    assert 0 < allowed.mean() < 1  # the avoid critic excludes some actions
+    assert np.asarray(rollout.explore).mean() == pytest.approx(0.25, abs=0.05)
 
 
 def test_seeds_and_slacks_vmap_in_one_compiled_run(small):
@@ -119,8 +158,8 @@ def test_softened_warm_start_keeps_greedy_actions_and_raises_entropy(small):
     actor = trainer.init_params(jax.random.key(0))["actor"]
     actor = jax.tree.map(lambda x: x * 50, actor)  # a sharp policy
     obs = jnp.asarray(eval_env.tabular_observations())
-    before = trainer.policy(actor, obs).logits
-    after = trainer.policy(scale_output(actor, jnp.float32(0.2)), obs).logits
+    before = trainer.restricted(actor, obs, None).logits
+    after = trainer.restricted(scale_output(actor, jnp.float32(0.2)), obs, None).logits
     assert np.allclose(after, before * 0.2, rtol=1e-5, atol=1e-4)  # logits / temperature 5
     assert np.array_equal(np.argmax(after, 1), np.argmax(before, 1))
 
@@ -134,10 +173,11 @@ def test_softened_warm_start_keeps_greedy_actions_and_raises_entropy(small):
 def test_one_critic_head_equals_its_column_of_all_heads():
     from tpo.algo.networks import Critics
 
-    critics = Critics((16, 16), 3)
+    critics = Critics((16, 16), 3, n_out=2)
     obs = jax.random.normal(jax.random.key(1), (5, 7))
     params = critics.init(jax.random.key(0), obs)["params"]
     every = critics.apply({"params": params}, obs)
+    assert every.shape == (5, 3, 2)
     # Outputs of unit scale from float32 sums of 16 products: the batched and the single
     # head may sum in another order (rounding ~1e-7), so an absolute tolerance of 1e-6.
     for column in range(3):

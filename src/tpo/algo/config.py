@@ -13,6 +13,7 @@ import tomli_w
 from tpo.errors import TPOError
 
 ADVANTAGE_FORMS = ("penalized", "literal")
+CONSTRAINTS = ("restriction", "penalty")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 
 
@@ -54,14 +55,27 @@ class TPOConfig:
     """hidden layer widths of the actor and of each critic"""
     activation: str = field(default="tanh", metadata={"choices": ("tanh", "relu")})
     """activation of the hidden layers: tanh or relu"""
+    constraint: str = field(default="penalty", metadata={"choices": CONSTRAINTS})
+    """how a phase keeps its ancestors' slacks: restriction (it samples only the actions
+    that the frozen ancestral Q-critics admit, and completion phases follow the leaf;
+    discrete actions) or penalty (the paper's Algorithm 1 with the Lagrangian penalty;
+    always used for continuous actions); see docs/design.md §5"""
+    tolerance: float = 0.05
+    """restriction: an action is admissible when its violation of an edge is at most
+    the slack plus this many standard deviations of the parent critic's targets"""
+    explore: float = 0.1
+    """restriction: share of rollout steps that take a uniform admissible action instead
+    of the policy's; they teach the Q-critics every action and are left out of the
+    policy's loss and the value targets"""
     beta: float | str = field(default=10.0, metadata={"metavar": "NUMBER|auto"})
-    """Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a violation
-    of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
+    """penalty: Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a
+    violation of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
     advantage: str = field(default="penalized", metadata={"choices": ADVANTAGE_FORMS})
     """penalized (GAE on the Lagrangian reward) or literal (Eq. 10 as printed);
     see docs/tpo-algorithm.md"""
     phase_fractions: tuple[float, ...] | None = field(default=None)
-    """share of the timesteps of each phase in topological order (default: equal)"""
+    """share of the timesteps of each phase: the objectives in topological order, then
+    (restriction) the completion phases (default: equal)"""
     carry_temperature: float = 5.0
     """the policy carries over from phase to phase with its logits divided by this
     temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
@@ -95,6 +109,13 @@ class TPOConfig:
             raise ConfigError(f'beta must be a finite number >= 0 or "auto", got '
                               f"{self.beta!r}")
         _positive("carry_temperature", self.carry_temperature)
+        _nonnegative("tolerance", self.tolerance)
+        _nonnegative("explore", self.explore)
+        if self.explore >= 1:
+            raise ConfigError(f"explore must be in [0, 1), got {self.explore!r}")
+        if self.constraint not in CONSTRAINTS:
+            raise ConfigError(f"constraint must be one of {', '.join(CONSTRAINTS)}, "
+                              f"got {self.constraint!r}")
         if not isinstance(self.anneal_lr, bool):
             raise ConfigError(f"anneal_lr must be true or false, got {self.anneal_lr!r}")
         if self.advantage not in ADVANTAGE_FORMS:

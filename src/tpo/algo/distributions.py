@@ -11,12 +11,19 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+MASKED = -1e9  # the logit of an action outside the allowed set (finite: no NaN in 0 * log 0)
+
 
 @struct.dataclass
 class Categorical:
     """``pi(a | s) = softmax(logits)_a`` over ``A`` actions; ``logits [..., A]``."""
 
     logits: jax.Array
+
+    def restrict(self, allowed: jax.Array) -> Categorical:
+        """``pi`` renormalised over the actions where ``allowed [..., A]`` is true
+        (the others get probability 0; at least one per row must be allowed)."""
+        return Categorical(jnp.where(allowed, self.logits, MASKED))
 
     def sample(self, key: jax.Array) -> jax.Array:
         return jax.random.categorical(key, self.logits)

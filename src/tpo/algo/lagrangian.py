@@ -37,12 +37,32 @@ def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax
 
 
 def violations(advantages: jax.Array, parents: jax.Array, slack: jax.Array) -> jax.Array:
-    """``C_wv = max(0, -A_w - eta_wv)`` for every edge: ``[..., k] -> [..., n_edges]``
-    (Prop. 1 with the one-step advantage standing in for ``Q_w - V_w``)."""
+    """``C_wv = max(0, -A_w - eta_wv)`` for every constraint (an edge ``(w, v)``, whose
+    parent's advantage is column ``parents[c]``): ``[..., k] -> [..., C]`` (Prop. 1
+    with the one-step advantage standing in for ``Q_w - V_w``)."""
     if jnp.ndim(parents) != 1 or jnp.shape(slack) != jnp.shape(parents):
         raise ValueError(f"parents {jnp.shape(parents)} and slack {jnp.shape(slack)} must "
-                         "be [n_edges] each")
+                         "be [C] each")
     return jnp.maximum(0.0, -advantages[..., parents] - slack)
+
+
+def admissible(advantages: jax.Array, slack: jax.Array, active: jax.Array) -> jax.Array:
+    """LAR's admissible actions from learned advantages (docs/design.md §2): the
+    actions of least total violation
+
+        sum_c active_c max(0, -(Q_c(s, a) - V_c(s)) - slack_c),
+
+    which are the actions of zero violation whenever there are any, and otherwise
+    the relaxed solver's choice. ``advantages [..., C, A]`` are ``Q - V`` of the
+    critic each constraint ``c`` reads; ``slack [C]`` includes any tolerance;
+    ``active [C]`` selects the constraints that hold. Returns ``[..., A]`` bool.
+    """
+    if jnp.shape(slack) != jnp.shape(active) or jnp.shape(advantages)[-2:-1] != jnp.shape(slack):
+        raise ValueError(f"advantages {jnp.shape(advantages)}, slack {jnp.shape(slack)} and "
+                         f"active {jnp.shape(active)} must be [..., C, A], [C] and [C]")
+    excess = jnp.maximum(0.0, -advantages - slack[:, None])
+    total = jnp.einsum("...ca,c->...a", excess, active)
+    return total <= total.min(axis=-1, keepdims=True) + 1e-6
 
 
 def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Array,

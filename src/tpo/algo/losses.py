@@ -50,13 +50,25 @@ def discounted_cumsum(x: jax.Array, discount: float, done: jax.Array) -> jax.Arr
     return out
 
 
-def normalize(x: jax.Array, eps: float = 1e-8) -> jax.Array:
-    """``(x - mean) / (std + eps)`` over the whole batch."""
-    return (x - x.mean()) / (x.std() + eps)
+def weighted_mean(x: jax.Array, weight: jax.Array | None = None) -> jax.Array:
+    """The mean of ``x``, or ``sum(weight x) / sum(weight)`` (0 if no weight)."""
+    if weight is None:
+        return x.mean()
+    check_shapes(x, weight=weight)
+    return jnp.sum(weight * x) / jnp.maximum(jnp.sum(weight), 1e-8)
 
 
-def clipped_surrogate(log_ratio: jax.Array, advantages: jax.Array, clip: float) -> jax.Array:
-    """PPO's policy loss ``-E[min(rho A, clip(rho, 1 - eps, 1 + eps) A)]``."""
+def normalize(x: jax.Array, weight: jax.Array | None = None, eps: float = 1e-8) -> jax.Array:
+    """``(x - mean) / (std + eps)`` over the batch (the samples of nonzero ``weight``)."""
+    mean = weighted_mean(x, weight)
+    return (x - mean) / (jnp.sqrt(weighted_mean((x - mean) ** 2, weight)) + eps)
+
+
+def clipped_surrogate(log_ratio: jax.Array, advantages: jax.Array, clip: float,
+                      weight: jax.Array | None = None) -> jax.Array:
+    """PPO's policy loss ``-E[min(rho A, clip(rho, 1 - eps, 1 + eps) A)]`` (a
+    ``weight``-ed mean if given)."""
     ratio = jnp.exp(log_ratio)
-    return -jnp.mean(jnp.minimum(ratio * advantages,
-                                 jnp.clip(ratio, 1.0 - clip, 1.0 + clip) * advantages))
+    return -weighted_mean(jnp.minimum(ratio * advantages,
+                                      jnp.clip(ratio, 1.0 - clip, 1.0 + clip) * advantages),
+                          weight)

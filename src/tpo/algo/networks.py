@@ -1,4 +1,4 @@
-"""Policy and critics: one actor, one critic per objective (Flax linen).
+"""Policy and critics: one actor, one critic per phase (Flax linen).
 
 Orthogonal initialisation as in PPO implementations (hidden gain sqrt(2),
 policy head 0.01, value heads 1). Parameters are created by :func:`init_params`
@@ -84,36 +84,41 @@ def scale_output(actor_params: dict, factor: jax.Array) -> dict:
 
 
 class Critics(nn.Module):
-    """``k`` independent value networks (stacked parameters ``[k, ...]`` under
-    ``heads``): ``[..., k]``.
+    """One independent critic network per phase (stacked parameters ``[P, ...]``
+    under ``heads``), each with ``n_out`` outputs: ``[..., P, n_out]``.
 
-    Each head predicts its objective's *normalised* value; :class:`ValueNorm`
-    turns it into a value.
+    Output 0 of a head is the state value ``V(s)``; with ``n_out = 1 + A`` (the
+    restriction form, discrete actions) outputs ``1 + a`` are the advantages
+    ``Q(s, a) - V(s)`` (a dueling head: the small differences between actions are
+    learned directly, not as differences of two large values). Each head predicts
+    *normalised* values; :class:`ValueNorm` turns them into values.
     """
 
     hidden: Sequence[int]
     k: int
+    n_out: int = 1
     activation: str = "tanh"
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         heads = nn.vmap(MLP, variable_axes={"params": 0}, split_rngs={"params": True},
-                        in_axes=None, out_axes=-1, axis_size=self.k)
-        return heads(self.hidden, 1, 1.0, self.activation, name="heads")(obs)[..., 0, :]
+                        in_axes=None, out_axes=-2, axis_size=self.k)
+        return heads(self.hidden, self.n_out, 1.0, self.activation, name="heads")(obs)
 
-    def head(self, params: dict, column: jax.Array, obs: jax.Array) -> jax.Array:
-        """Head ``column``'s output ``[...]`` alone (one MLP instead of ``k``; the
-        gradient reaches only that head's slice of ``params``)."""
-        one = jax.tree.map(lambda x: x[column], params["heads"])
-        mlp = MLP(self.hidden, 1, 1.0, self.activation, parent=None)
-        return mlp.apply({"params": one}, obs)[..., 0]
+    def head(self, params: dict, index: jax.Array, obs: jax.Array) -> jax.Array:
+        """Head ``index``'s outputs ``[..., n_out]`` alone (one MLP instead of ``k``;
+        the gradient reaches only that head's slice of ``params``)."""
+        one = jax.tree.map(lambda x: x[index], params["heads"])
+        mlp = MLP(self.hidden, self.n_out, 1.0, self.activation, parent=None)
+        return mlp.apply({"params": one}, obs)
 
 
 class ValueNorm(NamedTuple):
-    """Running statistics of each objective's value targets, ``[k]`` each.
+    """Running statistics of each critic head's value targets, ``[k]`` each.
 
-    A critic head learns ``(V - mean) / std``; the statistics of objective ``i``
-    move only during its own phase, so they freeze with its critic.
+    A critic head learns ``(V - mean) / std`` (and ``(Q - V) / std``); the
+    statistics of head ``i`` move only during its own phase, so they freeze with
+    its critic.
     """
 
     mean: jax.Array
@@ -131,8 +136,9 @@ class ValueNorm(NamedTuple):
         return mean, jnp.sqrt(jnp.maximum(var, 1e-4))
 
     def denormalize(self, out: jax.Array) -> jax.Array:
+        """Values (and advantages) from the critics' outputs ``[..., k, n_out]``."""
         mean, std = self.stats()
-        return out * std + mean
+        return out * std[:, None] + jnp.where(jnp.arange(out.shape[-1]) == 0, mean[:, None], 0.0)
 
     def update(self, targets: jax.Array, pick: jax.Array, decay: float = 0.9) -> ValueNorm:
         """Fold the batch ``targets`` (of the objective ``pick`` one-hots) into the stats."""

@@ -22,7 +22,7 @@ from tpo.algo.train import TrainState
 from tpo.atomic import write_dir_atomic
 from tpo.errors import TPOError
 
-FORMAT = 3  # 3: named layers, Optax-injected learning rate, episode statistics
+FORMAT = 4  # 4: a critic head per phase, Q outputs (restriction form)
 
 
 def state_bytes(state: TrainState, **extra: Any) -> bytes:

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tpo.algo.train import Rollout, Trainer, TrainState
+from tpo.algo.train import Acting, Rollout, Trainer, TrainState
 from tpo.envs.gym_adapter import EnvError, HostEnv
 
 Runner = Callable[[TrainState, jax.Array, int, int], tuple[TrainState, dict]]
@@ -38,15 +38,17 @@ class HostRunner:
     def __init__(self, trainer: Trainer, env: HostEnv) -> None:
         self.trainer, self.env = trainer, env
 
-        def act(actor: dict, obs: jax.Array, key_data: jax.Array, greedy: jax.Array):
-            pi = trainer.policy(actor, obs)
+        def act(acting: Acting, obs: jax.Array, key_data: jax.Array, greedy: jax.Array):
+            pi = trainer.policy(acting, obs)
             return jnp.where(greedy, pi.mode(), pi.sample(jax.random.wrap_key_data(key_data)))
 
         # Keys travel as raw key data (NumPy): indexing typed keys on the host costs
-        # an eager JAX dispatch per step; log-probs are computed for the whole
-        # rollout at once, so each step syncs with the device only for the action.
+        # an eager JAX dispatch per step; each step syncs with the device only for
+        # the action.
         self._act = jax.jit(act)
-        self._log_prob = jax.jit(lambda actor, obs, a: trainer.policy(actor, obs).log_prob(a))
+        self._behave = jax.jit(lambda acting, obs, key_data: trainer.behave(
+            acting, obs, jax.random.wrap_key_data(key_data)))
+        self._begin = jax.jit(trainer.begin_phase)
         self._learn = jax.jit(trainer.learn)
 
     def __call__(self, state: TrainState, slack: jax.Array, n: int, length: int
@@ -54,21 +56,25 @@ class HostRunner:
         del length  # nothing is compiled per chunk here
         history = []
         for _ in range(n):
-            state, rollout, episodes = self.collect(state)
+            state, rollout, episodes = self.collect(self._begin(state), slack)
             state, metrics = self._learn(state, slack, rollout, episodes)
             history.append(metrics)
         return state, jax.tree.map(lambda *x: jnp.stack(x), *history)
 
-    def collect(self, state: TrainState) -> tuple[TrainState, Rollout, dict]:
+    def collect(self, state: TrainState, slack: jax.Array
+                ) -> tuple[TrainState, Rollout, dict]:
         """The host counterpart of :meth:`Trainer.collect`."""
-        cfg, env = self.trainer.config, self.env
+        cfg, env, trainer = self.trainer.config, self.env, self.trainer
+        acting = trainer.acting(state, slack, trainer.phase_of(state.update))
         key, k_roll = jax.random.split(state.key)
         keys = np.asarray(jax.random.key_data(jax.random.split(k_roll, cfg.num_steps)))
         obs = np.asarray(state.obs)
         stats = jax.tree.map(np.asarray, state.episodes.clear())
         steps: list[tuple] = []
+        behaviour: list[tuple] = []
         for t in range(cfg.num_steps):
-            action = np.asarray(self._act(state.params["actor"], obs, keys[t], False))
+            action, log_prob, allowed, explore = self._behave(acting, obs, keys[t])
+            action = np.asarray(action)
             nxt, reward, term, trunc, final = env.step(action)
             if not np.isfinite(reward).all():
                 env_i, col = np.argwhere(~np.isfinite(reward))[0]
@@ -79,14 +85,16 @@ class HostRunner:
             done = (term | trunc).astype(np.float32)
             stats = stats.update(reward, done)
             steps.append((obs, action, reward, final, term.astype(np.float32), done))
+            behaviour.append((log_prob, allowed, explore))
             obs = nxt
         o, a, r, f, te, d = (jnp.asarray(np.stack(x)) for x in zip(*steps, strict=True))
-        rollout = Rollout(o, a, self._log_prob(state.params["actor"], o, a), r, f, te, d)
+        log_prob, allowed, explore = jax.tree.map(lambda *x: jnp.stack(x), *behaviour)
+        rollout = Rollout(o, a, log_prob, r, f, te, d, allowed, explore)
         state = state.replace(obs=jnp.asarray(obs), key=key,
                               episodes=jax.tree.map(jnp.asarray, stats))
         return state, rollout, stats.summary()
 
-    def monte_carlo(self, actor: dict, episodes: int, greedy: bool, gamma: float,
+    def monte_carlo(self, acting: Acting, episodes: int, greedy: bool, gamma: float,
                     seed: int) -> dict[str, np.ndarray]:
         """Returns of ``episodes`` episodes on the runner's env (the layout of
         :func:`tpo.algo.evaluate.monte_carlo`); every copy runs the same number of
@@ -100,7 +108,7 @@ class HostRunner:
         g_acc, l_acc = np.ones(n), np.zeros(n)
         keys = _key_stream(jax.random.key(seed))
         while min(len(f) for f in found) < quota:
-            action = self._act(actor, obs, next(keys), jnp.bool_(greedy))
+            action = self._act(acting, obs, next(keys), jnp.bool_(greedy))
             obs, reward, term, trunc, _ = env.step(np.asarray(action))
             r_acc += reward
             d_acc += g_acc[:, None] * reward

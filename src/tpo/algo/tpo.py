@@ -117,7 +117,7 @@ class TPO:
             new_state, metrics = self._run(state, slack, n,
                                            min(chunk_updates, trainer.num_updates))
             metrics = jax.tree.map(np.asarray, metrics)
-            check_finite(new_state.params, metrics, done, self.graph.order)
+            check_finite(new_state.params, metrics, done, trainer.problem.phase_names)
             state, done = new_state, done + n
             self.state = state
             self.num_timesteps += n * self.config.batch_size
@@ -147,7 +147,7 @@ class TPO:
         if obs.shape[-1:] != tuple(self.env.obs_shape):
             raise TPOError(f"observation has shape {tuple(obs.shape)}, expected "
                            f"[..., {self.env.obs_shape[0]}]")
-        pi = trainer.policy(state.params["actor"], obs)
+        pi = trainer.policy(trainer.acting(state, trainer.slack_array()), obs)
         if deterministic:
             return np.asarray(pi.mode())
         return np.asarray(pi.sample(jax.random.key(0) if key is None else key))
@@ -160,24 +160,23 @@ class TPO:
         ``lar_correct``, ``strict`` and ``same_values``."""
         state, trainer = self._need_state(), self._need_trainer()
         gamma, objectives = self.config.gamma, self.env.objectives
-        actor = state.params["actor"]
+        acting = trainer.acting(state, trainer.slack_array())
         if self.host and self.eval_env is None:
             self.eval_env = self.env.copy(min(episodes, self.config.num_envs))
         result: dict[str, Any] = {"mc": {}}
         runner = HostRunner(trainer, self.eval_env) if self.host else None
         for i, greedy in enumerate((True, False)):
             if runner is not None:
-                returns = runner.monte_carlo(
-                    actor, episodes, greedy, gamma, seed + i)
+                returns = runner.monte_carlo(acting, episodes, greedy, gamma, seed + i)
             else:
-                returns = monte_carlo(trainer.policy, actor, self.eval_env,
+                returns = monte_carlo(trainer.policy, acting, self.eval_env,
                                       jax.random.key(seed + i), episodes, greedy, gamma)
             result["mc"]["greedy" if greedy else "stochastic"] = {
                 "undiscounted": summarize(returns["undiscounted"], objectives),
                 "discounted": summarize(returns["discounted"], objectives),
                 "length": float(returns["length"].mean())}
         if hasattr(self.eval_env, "tabular"):
-            result.update(exact_evaluation(trainer.policy, actor, self.eval_env, self.graph,
+            result.update(exact_evaluation(trainer.policy, acting, self.eval_env, self.graph,
                                            gamma))
         return result
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any, NamedTuple
 
+import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -35,10 +36,15 @@ import optax
 from flax import struct
 
 from tpo.algo.config import ConfigError, TPOConfig
-from tpo.algo.distributions import Distribution
+from tpo.algo.distributions import Categorical, Distribution
 from tpo.algo.episodes import EpisodeStats
-from tpo.algo.lagrangian import ancestral_advantages, lagrangian_advantages, violations
-from tpo.algo.losses import clipped_surrogate, normalize
+from tpo.algo.lagrangian import (
+    admissible,
+    ancestral_advantages,
+    lagrangian_advantages,
+    violations,
+)
+from tpo.algo.losses import clipped_surrogate, normalize, weighted_mean
 from tpo.algo.networks import Actor, Critics, ValueNorm, init_params, scale_output
 from tpo.graph import ObjectiveGraph
 
@@ -70,6 +76,8 @@ class Rollout(NamedTuple):
     final_obs: jax.Array  # the true s_{t+1} (before any auto-reset)
     terminated: jax.Array  # float: s_{t+1} is terminal (no bootstrap)
     done: jax.Array  # float: the episode ended (terminated or truncated)
+    allowed: jax.Array | None  # [A] bool, the admissible actions (restriction form)
+    explore: jax.Array  # float: a uniform admissible action, not the policy's
 
 
 class Batch(NamedTuple):
@@ -79,42 +87,94 @@ class Batch(NamedTuple):
     action: jax.Array
     log_prob: jax.Array
     advantage: jax.Array
-    target: jax.Array
+    target: jax.Array  # of V(s)
+    q_target: jax.Array | None  # of Q(s, a) - V(s) (restriction form)
+    allowed: jax.Array | None
+    weight: jax.Array  # 1 for the policy's own steps, 0 for exploring ones
 
 
 @dataclass(frozen=True)
 class Problem:
-    """The static structure of a TMDP that the compiled program needs.
+    """The static structure of a run that the compiled program needs: its phases
+    and the constraints each phase keeps (docs/design.md §5).
+
+    Phase ``p`` trains critic head ``p`` on reward column ``reward[p]``: first the
+    graph's objectives in topological order (Algorithm 1); then, in the
+    restriction form, one *completion* phase per ancestor of the leaf, roots
+    first, which keeps the leaf's and the earlier completion phases' values at
+    zero slack (the tie rule of docs/design.md §2, learned).
 
     Attributes:
         objectives: the env's objective names (reward columns).
-        order: reward column of each phase, in topological order.
-        parents: reward column of every edge's parent, ``[n_edges]``.
-        active: ``[n_phases, n_edges]``, 1 where the edge is in the phase's ``E_i``.
-        beta: multiplier of every phase, ``[n_phases]``.
+        graph: the DAG, bound to ``objectives``.
+        reward: ``[P]`` reward column of every phase.
+        head: ``[C]`` the critic head (a phase) whose values constraint ``c`` reads.
+        slack_index: ``[C]`` its slack: an edge's index, or ``n_edges`` for zero.
+        active: ``[P, C]`` 1 where phase ``p`` keeps constraint ``c``.
+        beta: ``[P]`` penalty multiplier of every phase.
     """
 
     objectives: tuple[str, ...]
     graph: ObjectiveGraph
-    order: np.ndarray
-    parents: np.ndarray
+    reward: np.ndarray
+    head: np.ndarray
+    slack_index: np.ndarray
     active: np.ndarray
     beta: np.ndarray
 
     @classmethod
     def build(cls, graph: ObjectiveGraph, objectives: Sequence[str], config: TPOConfig,
-              reward_low: np.ndarray, reward_high: np.ndarray) -> Problem:
+              reward_low: np.ndarray, reward_high: np.ndarray, completion: bool) -> Problem:
         graph = graph.bind(tuple(objectives))
         col = {n: i for i, n in enumerate(objectives)}
-        order = np.array([col[n] for n in graph.order], np.int32)
-        parents = np.array([col[e.parent] for e in graph.edges], np.int32)
-        active = np.array([[e in graph.ancestral_edges(n) for e in graph.edges]
-                           for n in graph.order], np.float32).reshape(len(order), len(parents))
+        phase = {n: i for i, n in enumerate(graph.order)}
+        n_edges = len(graph.edges)
+        constraints = [(phase[e.parent], j) for j, e in enumerate(graph.edges)]
+        rows = [[j for j, e in enumerate(graph.edges) if e in graph.ancestral_edges(n)]
+                for n in graph.order]
+        reward = [col[n] for n in graph.order]
+        if completion and n_edges:
+            kept = [*rows[-1], len(constraints)]
+            constraints.append((phase[graph.leaf], n_edges))  # the leaf, at zero slack
+            for i, name in enumerate(graph.order[:-1]):
+                if i:  # the previous completion phase, at zero slack
+                    kept = [*kept, len(constraints)]
+                    constraints.append((len(reward) - 1, n_edges))
+                rows.append(kept)
+                reward.append(col[name])
+        active = np.zeros((len(rows), len(constraints)), np.float32)
+        for p, row in enumerate(rows):
+            active[p, row] = 1.0
+        reward_arr = np.array(reward, np.int32)
         if config.beta == "auto":
-            beta = value_bounds(reward_low, reward_high, config.gamma)[order].astype(np.float32)
+            beta = value_bounds(reward_low, reward_high, config.gamma)[reward_arr]
         else:
-            beta = np.full(len(order), float(config.beta), np.float32)
-        return cls(tuple(objectives), graph, order, parents, active, beta)
+            beta = np.full(len(reward), float(config.beta))
+        pairs = np.array(constraints, np.int32).reshape(-1, 2)
+        return cls(tuple(objectives), graph, reward_arr, pairs[:, 0], pairs[:, 1], active,
+                   beta.astype(np.float32))
+
+    @property
+    def n_phases(self) -> int:
+        return len(self.reward)
+
+    @property
+    def phase_names(self) -> tuple[str, ...]:
+        """The objective of every phase; a completion phase is marked as such."""
+        order = self.graph.order
+        return order + tuple(f"{n} (completion)" for n in order[:self.n_phases - len(order)])
+
+
+class Acting(NamedTuple):
+    """What a run's policy needs to act (:meth:`Trainer.policy`): the actor, and in
+    the restriction form the frozen critics, their value statistics, the slack
+    and the phase whose constraints hold."""
+
+    actor: dict
+    critics: dict
+    value_norm: ValueNorm
+    slack: jax.Array  # [n_edges]
+    phase: jax.Array  # int32 []
 
 
 class Trainer:
@@ -126,11 +186,16 @@ class Trainer:
     def __init__(self, env: Any, graph: ObjectiveGraph, config: TPOConfig,
                  total_timesteps: int) -> None:
         self.env, self.config, self.total_timesteps = env, config, total_timesteps
+        space = env.action_space
+        #: whether phases act within the ancestors' admissible actions (else penalised)
+        self.restricts = (config.constraint == "restriction" and bool(graph.edges)
+                          and isinstance(space, gym.spaces.Discrete))
         self.problem = Problem.build(graph, env.objectives, config, env.reward_low,
-                                     env.reward_high)
-        self.actor = Actor.for_space(env.action_space, config.hidden, config.activation)
-        self.critics = Critics(config.hidden, len(env.objectives), config.activation)
-        n_phases = len(self.problem.order)
+                                     env.reward_high, completion=self.restricts)
+        self.actor = Actor.for_space(space, config.hidden, config.activation)
+        n_out = 1 + int(space.n) if self.restricts else 1
+        self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation)
+        n_phases = self.problem.n_phases
         if config.phase_fractions is not None and len(config.phase_fractions) != n_phases:
             raise ConfigError(f"phase_fractions has {len(config.phase_fractions)} values for "
                               f"{n_phases} phase(s)")
@@ -182,19 +247,53 @@ class Trainer:
     @partial(jax.jit, static_argnums=0)
     def _init_state(self, params: dict, env_state: Any, obs: jax.Array, k_run: jax.Array
                     ) -> TrainState:
-        k = len(self.problem.objectives)
         return TrainState(params, self.optimizer.init(params["actor"]),
                           self.optimizer.init(params["critics"]), env_state, obs, k_run,
-                          jnp.zeros((), jnp.int32), ValueNorm.init(k),
-                          EpisodeStats.init(self.config.num_envs, k))
+                          jnp.zeros((), jnp.int32), ValueNorm.init(self.problem.n_phases),
+                          EpisodeStats.init(self.config.num_envs,
+                                            len(self.problem.objectives)))
 
     # -------------------------------------------------------------- policy
-    def policy(self, actor_params: dict, obs: jax.Array) -> Distribution:
-        """``pi(. | obs)``: the action distribution of the actor with ``actor_params``."""
-        return self.actor.apply({"params": actor_params}, obs)
+    def acting(self, state: TrainState, slack: jax.Array,
+               phase: jax.Array | None = None) -> Acting:
+        """What the policy of ``state`` needs to act at ``slack``, under the constraints
+        of ``phase`` (by default the phase of the last update done: the learned
+        policy once the run is over)."""
+        if phase is None:
+            phase = self.phase_of(jnp.maximum(state.update - 1, 0))
+        return Acting(state.params["actor"], state.params["critics"], state.value_norm,
+                      jnp.asarray(slack, jnp.float32), jnp.asarray(phase, jnp.int32))
+
+    def policy(self, acting: Acting, obs: jax.Array) -> Distribution:
+        """``pi(. | obs)``: the actor's distribution, within the admissible actions in
+        the restriction form."""
+        return self.restricted(acting.actor, obs, self.allowed(acting, obs))
+
+    def restricted(self, actor_params: dict, obs: jax.Array,
+                   allowed: jax.Array | None) -> Distribution:
+        """The actor's distribution at ``obs``, restricted to ``allowed`` (if not None)."""
+        pi = self.actor.apply({"params": actor_params}, obs)
+        return pi if allowed is None else pi.restrict(allowed)
+
+    def allowed(self, acting: Acting, obs: jax.Array) -> jax.Array | None:
+        """The admissible actions ``[..., A]`` of ``acting.phase`` at ``obs`` (None in
+        the penalty form): :func:`tpo.algo.lagrangian.admissible` on the advantage
+        outputs of the frozen critics, each edge's slack widened by ``tolerance``
+        standard deviations of its parent critic's targets."""
+        if not self.restricts:
+            return None
+        prob = self.problem
+        head = jnp.asarray(prob.head)
+        out = acting.value_norm.denormalize(
+            self.critics.apply({"params": acting.critics}, obs))[..., head, 1:]  # [..., C, A]
+        _, std = acting.value_norm.stats()
+        slack = (jnp.concatenate([acting.slack, jnp.zeros(1)])[jnp.asarray(prob.slack_index)]
+                 + self.config.tolerance * std[head])
+        return admissible(out, slack, jnp.asarray(prob.active)[acting.phase])
 
     def values(self, state: TrainState, obs: jax.Array) -> jax.Array:
-        """Every critic's value ``[..., k]`` at ``obs``."""
+        """Every critic head's outputs ``[..., P, n_out]`` at ``obs``, as values
+        (``[..., 0]`` is ``V``, ``[..., 1 + a]`` is ``Q(., a) - V``)."""
         return state.value_norm.denormalize(
             self.critics.apply({"params": state.params["critics"]}, obs))
 
@@ -202,31 +301,31 @@ class Trainer:
     def phase_of(self, update: jax.Array) -> jax.Array:
         """The phase of an update (the last phase beyond the run's end)."""
         phase = jnp.sum(update >= jnp.asarray(self.phase_start[1:])).astype(jnp.int32)
-        return jnp.minimum(phase, len(self.problem.order) - 1)
+        return jnp.minimum(phase, self.problem.n_phases - 1)
 
     def update(self, state: TrainState, slack: jax.Array) -> tuple[TrainState, dict]:
-        """One PPO update of the current phase: a rollout of the JAX env, then
-        :meth:`learn`."""
-        state, rollout, episodes = self.collect(state)
+        """One PPO update of the current phase: begin the phase, a rollout of the JAX
+        env, then :meth:`learn`."""
+        state = self.begin_phase(state)
+        state, rollout, episodes = self.collect(state, slack)
         return self.learn(state, slack, rollout, episodes)
 
-    def collect(self, state: TrainState) -> tuple[TrainState, Rollout, dict]:
+    def collect(self, state: TrainState, slack: jax.Array) -> tuple[TrainState, Rollout, dict]:
         """``num_steps`` steps of every env under the current policy, and the
         statistics of the episodes that finished."""
         env, cfg = self.env, self.config
-        actor = state.params["actor"]
+        acting = self.acting(state, slack, self.phase_of(state.update))
 
         def step(carry, key):
             env_state, obs, stats = carry
             k_act, k_env = jax.random.split(key)
-            pi = self.policy(actor, obs)
-            action = pi.sample(k_act)
+            action, log_prob, allowed, explore = self.behave(acting, obs, k_act)
             obs2, env_state, reward, term, trunc, info = jax.vmap(
                 env.step, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_env, cfg.num_envs), env_state, action, env.params)
             done = (term | trunc).astype(jnp.float32)
-            out = Rollout(obs, action, pi.log_prob(action), reward, info["final_obs"],
-                          term.astype(jnp.float32), done)
+            out = Rollout(obs, action, log_prob, reward, info["final_obs"],
+                          term.astype(jnp.float32), done, allowed, explore)
             return (env_state, obs2, stats.update(reward, done)), out
 
         key, k_roll = jax.random.split(state.key)
@@ -236,23 +335,43 @@ class Trainer:
         state = state.replace(env_state=env_state, obs=obs, key=key, episodes=stats)
         return state, rollout, stats.summary()
 
+    def behave(self, acting: Acting, obs: jax.Array, key: jax.Array
+               ) -> tuple[jax.Array, jax.Array, jax.Array | None, jax.Array]:
+        """The actions of a rollout step at ``obs [E, D]``: the policy's samples, and in
+        the restriction form, on a share ``explore`` of the envs, a uniform admissible
+        action instead. Returns the actions, their log-probabilities under the
+        policy, the admissible actions and the exploring flags (float)."""
+        k_pi, k_explore, k_uniform = jax.random.split(key, 3)
+        allowed = self.allowed(acting, obs)
+        pi = self.restricted(acting.actor, obs, allowed)
+        action = pi.sample(k_pi)
+        explore = jnp.zeros(action.shape[:1], jnp.float32)
+        if allowed is not None:
+            explore = (jax.random.uniform(k_explore, explore.shape)
+                       < self.config.explore).astype(jnp.float32)
+            uniform = Categorical(jnp.zeros(allowed.shape)).restrict(allowed).sample(k_uniform)
+            action = jnp.where(explore > 0, uniform, action)
+        return action, pi.log_prob(action), allowed, explore
+
     def learn(self, state: TrainState, slack: jax.Array, rollout: Rollout,
               episodes: dict) -> tuple[TrainState, dict]:
-        """The update from one rollout (of any source)."""
+        """The update from one rollout (of any source), after :meth:`begin_phase`."""
         phase = self.phase_of(state.update)
-        state = self.begin_phase(state, phase)
         batch, penalty, value_norm = self.lagrangian_targets(state, slack, rollout, phase)
         lr = jnp.asarray(self.learning_rate(state.update), jnp.float32)
         state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr)
+        excluded = 0.0 if rollout.allowed is None else 1.0 - rollout.allowed.mean()
         metrics = {"phase": phase, "lr": lr,
                    "penalty": penalty.mean(), "violation_rate": (penalty > 0).mean(),
-                   **episodes, **jax.tree.map(jnp.mean, losses)}
+                   "excluded": excluded, **episodes, **jax.tree.map(jnp.mean, losses)}
         return state, metrics
 
-    def begin_phase(self, state: TrainState, phase: jax.Array) -> TrainState:
+    def begin_phase(self, state: TrainState) -> TrainState:
         """At a phase's first update: restart both optimisers, and carry the policy
         over softened (logits divided by ``carry_temperature``) into every phase but
-        the first; at any other update, the state unchanged."""
+        the first; at any other update, the state unchanged. Call it once per update,
+        before the rollout."""
+        phase = self.phase_of(state.update)
         first = state.update == jnp.asarray(self.phase_start)[phase]
         soften = first & (phase > 0)
         actor = scale_output(state.params["actor"],
@@ -266,22 +385,39 @@ class Trainer:
 
     def lagrangian_targets(self, state: TrainState, slack: jax.Array, rollout: Rollout,
                            phase: jax.Array) -> tuple[Batch, jax.Array, ValueNorm]:
-        """The phase's advantages and critic targets (Eq. 10 with the frozen ancestral
-        critics' violations), the penalty of every transition ``[T, E]``, and the
-        value statistics with the new targets folded in."""
+        """The phase's advantages and critic targets, the penalty of every transition
+        ``[T, E]`` and the value statistics with the new targets folded in.
+
+        Penalty form: Eq. 10 with the frozen ancestral critics' one-step violations.
+        Restriction form: no penalty (the policy acts only within the admissible
+        actions); the phase's head also learns ``Q(s, a) - V(s)`` from the one-step
+        advantages ``r + gamma V(s') - V(s)``.
+        """
         cfg, prob = self.config, self.problem
-        pick = jax.nn.one_hot(jnp.asarray(prob.order)[phase], len(prob.objectives))
+        pick = jax.nn.one_hot(phase, prob.n_phases)
         # The critics see the whole rollout at once (one batched call, not one per step).
-        value, next_value = self.values(state, jnp.stack([rollout.obs, rollout.final_obs]))
-        adv_all = ancestral_advantages(rollout.reward, value, next_value, rollout.terminated,
-                                       cfg.gamma)
-        c = violations(adv_all, jnp.asarray(prob.parents), slack)
-        penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
+        out = self.values(state, jnp.stack([rollout.obs, rollout.final_obs]))[..., 0]
+        value, next_value = out[0], out[1]  # [T, E, P]
+        rewards = rollout.reward[..., jnp.asarray(prob.reward)]  # [T, E, P]
+        reward, v, next_v = rewards @ pick, value @ pick, next_value @ pick
+        if self.restricts:
+            penalty = jnp.zeros_like(reward)
+            q_target = reward + cfg.gamma * (1.0 - rollout.terminated) * next_v - v
+        else:
+            adv_all = ancestral_advantages(rewards, value, next_value, rollout.terminated,
+                                           cfg.gamma)
+            slacks = jnp.concatenate([slack, jnp.zeros(1)])[jnp.asarray(prob.slack_index)]
+            c = violations(adv_all, jnp.asarray(prob.head), slacks)
+            penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
+            q_target = None
+        # An exploring step cuts the trace of the policy's returns before it.
+        following = jnp.concatenate([rollout.explore[1:], jnp.zeros_like(rollout.explore[:1])])
         advantage, target = lagrangian_advantages(
-            cfg.advantage, rollout.reward @ pick, value @ pick, next_value @ pick, penalty,
-            jnp.asarray(prob.beta)[phase], rollout.terminated, rollout.done, cfg.gamma,
+            cfg.advantage, reward, v, next_v, penalty, jnp.asarray(prob.beta)[phase],
+            rollout.terminated, jnp.maximum(rollout.done, following), cfg.gamma,
             cfg.gae_lambda)
-        batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantage, target)
+        batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantage, target,
+                      q_target, rollout.allowed, 1.0 - rollout.explore)
         batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
         return batch, penalty, state.value_norm.update(target, pick)
 
@@ -291,14 +427,12 @@ class Trainer:
         ``lr``: the clipped surrogate of the actor and the phase critic's normalised
         value loss."""
         cfg = self.config
-        column = jnp.asarray(self.problem.order)[phase]
         mean, std = value_norm.stats()
-        pick = jax.nn.one_hot(column, len(self.problem.objectives))
-        scale = (mean @ pick, std @ pick)
+        scale = (mean[phase], std[phase])
 
         def minibatch(carry, mb: Batch):
             params, actor_opt, critic_opt = carry
-            grads, info = jax.grad(self._loss, has_aux=True)(params, mb, column, scale)
+            grads, info = jax.grad(self._loss, has_aux=True)(params, mb, phase, scale)
             a_up, actor_opt = self.optimizer.update(grads["actor"], actor_opt)
             c_up, critic_opt = self.optimizer.update(grads["critics"], critic_opt)
             params = {"actor": optax.apply_updates(params["actor"], a_up),
@@ -321,18 +455,22 @@ class Trainer:
                               key=key, update=state.update + 1, value_norm=value_norm)
         return state, losses
 
-    def _loss(self, params: dict, mb: Batch, column: jax.Array,
+    def _loss(self, params: dict, mb: Batch, phase: jax.Array,
               scale: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, dict]:
         cfg = self.config
-        pi = self.policy(params["actor"], mb.obs)
+        pi = self.restricted(params["actor"], mb.obs, mb.allowed)
         log_ratio = pi.log_prob(mb.action) - mb.log_prob
-        pg = clipped_surrogate(log_ratio, normalize(mb.advantage), cfg.clip_eps)
+        pg = clipped_surrogate(log_ratio, normalize(mb.advantage, mb.weight), cfg.clip_eps,
+                               mb.weight)
         ent = pi.entropy().mean()
         mean, std = scale
-        value = self.critics.head(params["critics"], column, mb.obs)
-        vl = 0.5 * jnp.mean((value - (mb.target - mean) / std) ** 2)
+        out = self.critics.head(params["critics"], phase, mb.obs)  # [B, n_out]
+        vl = 0.5 * weighted_mean((out[:, 0] - (mb.target - mean) / std) ** 2, mb.weight)
+        if mb.q_target is not None:
+            q = jnp.take_along_axis(out[:, 1:], mb.action[:, None].astype(jnp.int32), 1)
+            vl = vl + 0.5 * jnp.mean((q[:, 0] - mb.q_target / std) ** 2)
         total = pg - cfg.ent_coef * ent + cfg.vf_coef * vl
-        kl = jnp.mean((jnp.exp(log_ratio) - 1) - log_ratio)
+        kl = weighted_mean((jnp.exp(log_ratio) - 1) - log_ratio, mb.weight)
         return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent, "approx_kl": kl}
 
     # ------------------------------------------------------------------- run

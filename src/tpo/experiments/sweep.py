@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo import TPOConfig, Trainer, TrainState
+from tpo.algo.train import Acting
 from tpo.algo.evaluate import episode_returns
 from tpo.algo.persist import restore_state, state_bytes
 from tpo.atomic import write_atomic
@@ -104,8 +105,9 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
             saved_at = time.monotonic()
         if progress is not None:
             progress(done, trainer.num_updates)
-    return evaluate_sweep(trainer, states.params["actor"], env, graphs, slack_arr,
-                          tuple(seeds), episodes)
+    actings = jax.vmap(jax.vmap(trainer.acting, in_axes=(0, None)))(
+        states, jnp.asarray(slack_arr))
+    return evaluate_sweep(trainer, actings, env, graphs, slack_arr, tuple(seeds), episodes)
 
 
 def _save_states(path: Path, states: TrainState, done: int) -> None:
@@ -121,15 +123,16 @@ def _load_states(path: Path, template: TrainState) -> tuple[TrainState, int]:
                        "start the sweep again") from None
 
 
-def evaluate_sweep(trainer: Trainer, actors: dict, env: GridNav,
+def evaluate_sweep(trainer: Trainer, actings: Acting, env: GridNav,
                    graphs: Sequence[ObjectiveGraph], slacks: np.ndarray,
                    seeds: tuple[int, ...], episodes: int) -> SweepResult:
-    """Exact and Monte Carlo values of ``actors`` (leading axes ``[S, N]``)."""
+    """Exact and Monte Carlo values of the policies ``actings`` (leading axes
+    ``[S, N]``, of :meth:`Trainer.acting`)."""
     eval_env = from_spec(env.to_spec(), evaluation=True)
     gamma = trainer.config.gamma
     model = eval_env.tabular(gamma).model
     obs = jnp.asarray(eval_env.tabular_observations())
-    policies = np.asarray(jax.vmap(jax.vmap(lambda p: trainer.policy(p, obs).mode()))(actors))
+    policies = np.asarray(jax.vmap(jax.vmap(lambda p: trainer.policy(p, obs).mode()))(actings))
     solutions = [solve_lar(model, g, relax=True) for g in graphs]
     verdicts = [[judge(pi) for pi in row]
                 for judge, row in zip(map(Judge, solutions), policies, strict=True)]
@@ -138,7 +141,7 @@ def evaluate_sweep(trainer: Trainer, actors: dict, env: GridNav,
     keys = jax.random.split(jax.random.key(0), episodes)
     mc_run = jax.jit(jax.vmap(jax.vmap(
         lambda p: episode_returns(trainer.policy, p, eval_env, keys, True, gamma)[1].mean(0))))
-    mc = np.asarray(mc_run(actors), np.float64)
+    mc = np.asarray(mc_run(actings), np.float64)
     lar = np.array([[s.start_policy_values()[n] for n in env.objectives] for s in solutions])
     flags = {name: np.array([[getattr(v, name) for v in row] for row in verdicts])
              for name in ("lar_correct", "strict", "same_values")}
