@@ -64,9 +64,9 @@ class TPOConfig:
     """restriction: an action is admissible when its violation of an edge is at most
     the slack plus this many standard deviations of the parent critic's targets"""
     explore: float = 0.1
-    """restriction: share of rollout steps that take a uniform admissible action instead
-    of the policy's; they teach the Q-critics every action and are left out of the
-    policy's loss and the value targets"""
+    """restriction: share of rollout steps that take a uniform random action instead of
+    the policy's; they teach the critics' advantages every action and are left out of
+    the policy's loss and the value targets"""
     beta: float | str = field(default=10.0, metadata={"metavar": "NUMBER|auto"})
     """penalty: Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a
     violation of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""

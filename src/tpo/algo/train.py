@@ -1,11 +1,13 @@
 """Topological policy optimization (paper Algorithm 1), end to end in JAX.
 
-One policy, one critic per objective. Objectives are trained in topological
-order, one PPO phase each; phase ``i`` uses the generalized Lagrangian
-advantages of :mod:`tpo.algo.lagrangian`, whose penalty reads the frozen
-critics of the objectives already trained. After the phase, critic ``i`` is
-frozen too (no later phase trains it). With a one-objective graph this is
-plain PPO, the baseline, in the same code.
+One policy, one critic head per phase. Objectives are trained in topological
+order, one PPO phase each, and after its phase a head is frozen. A phase keeps
+its ancestors' slacks in one of two forms (``TPOConfig.constraint``,
+docs/design.md §5): the paper's penalty, the generalized Lagrangian advantages
+of :mod:`tpo.algo.lagrangian` read from the frozen critics; or the restriction,
+sampling only the actions that LAR's rule admits on the frozen critics'
+advantage outputs, followed by the completion phases. With a one-objective
+graph this is plain PPO, the baseline, in the same code.
 
 The whole run is a loop over updates; the phase of an update is a traced
 number, so one compiled update serves every phase and the run is a single
@@ -16,9 +18,10 @@ slack values::
     state = trainer.init(key)
     state, metrics = trainer.run(state, slack, trainer.num_updates)
 
-An update is :meth:`Trainer.collect` (a rollout of the JAX env) then
-:meth:`Trainer.learn`, which reads top to bottom: begin the phase, compute the
-Lagrangian targets, run the PPO epochs.
+An update is :meth:`Trainer.begin_phase`, :meth:`Trainer.collect` (a rollout of
+the JAX env) then :meth:`Trainer.learn`, which reads top to bottom: compute the
+phase's targets, run the PPO epochs. The learned policy is
+``trainer.policy(trainer.acting(state, slack), obs)``.
 """
 
 from __future__ import annotations
@@ -88,7 +91,7 @@ class Batch(NamedTuple):
     log_prob: jax.Array
     advantage: jax.Array
     target: jax.Array  # of V(s)
-    q_target: jax.Array | None  # of Q(s, a) - V(s) (restriction form)
+    q_target: jax.Array | None  # [P] of every head's Q(s, a) - V(s) (restriction form)
     allowed: jax.Array | None
     weight: jax.Array  # 1 for the policy's own steps, 0 for exploring ones
 
@@ -338,9 +341,10 @@ class Trainer:
     def behave(self, acting: Acting, obs: jax.Array, key: jax.Array
                ) -> tuple[jax.Array, jax.Array, jax.Array | None, jax.Array]:
         """The actions of a rollout step at ``obs [E, D]``: the policy's samples, and in
-        the restriction form, on a share ``explore`` of the envs, a uniform admissible
-        action instead. Returns the actions, their log-probabilities under the
-        policy, the admissible actions and the exploring flags (float)."""
+        the restriction form, on a share ``explore`` of the envs, a uniform action
+        instead (any action: a critic that wrongly excludes one must still see it).
+        Returns the actions, their log-probabilities under the policy, the
+        admissible actions and the exploring flags (float)."""
         k_pi, k_explore, k_uniform = jax.random.split(key, 3)
         allowed = self.allowed(acting, obs)
         pi = self.restricted(acting.actor, obs, allowed)
@@ -349,7 +353,7 @@ class Trainer:
         if allowed is not None:
             explore = (jax.random.uniform(k_explore, explore.shape)
                        < self.config.explore).astype(jnp.float32)
-            uniform = Categorical(jnp.zeros(allowed.shape)).restrict(allowed).sample(k_uniform)
+            uniform = Categorical(jnp.zeros(allowed.shape)).sample(k_uniform)
             action = jnp.where(explore > 0, uniform, action)
         return action, pi.log_prob(action), allowed, explore
 
@@ -390,8 +394,11 @@ class Trainer:
 
         Penalty form: Eq. 10 with the frozen ancestral critics' one-step violations.
         Restriction form: no penalty (the policy acts only within the admissible
-        actions); the phase's head also learns ``Q(s, a) - V(s)`` from the one-step
-        advantages ``r + gamma V(s') - V(s)``.
+        actions); the advantage outputs ``Q_h(s, a) - V_h(s)`` of the phase's head
+        and of every earlier head ``h`` learn the one-step advantages
+        ``r_h + gamma V_h(s') - V_h(s)`` (of ``[T, E, P]``): with ``V_h`` frozen these
+        targets are fixed, so an ancestor's advantages keep sharpening on every later
+        rollout while its values stay frozen.
         """
         cfg, prob = self.config, self.problem
         pick = jax.nn.one_hot(phase, prob.n_phases)
@@ -400,12 +407,12 @@ class Trainer:
         value, next_value = out[0], out[1]  # [T, E, P]
         rewards = rollout.reward[..., jnp.asarray(prob.reward)]  # [T, E, P]
         reward, v, next_v = rewards @ pick, value @ pick, next_value @ pick
+        adv_all = ancestral_advantages(rewards, value, next_value, rollout.terminated,
+                                       cfg.gamma)
         if self.restricts:
             penalty = jnp.zeros_like(reward)
-            q_target = reward + cfg.gamma * (1.0 - rollout.terminated) * next_v - v
+            q_target = adv_all
         else:
-            adv_all = ancestral_advantages(rewards, value, next_value, rollout.terminated,
-                                           cfg.gamma)
             slacks = jnp.concatenate([slack, jnp.zeros(1)])[jnp.asarray(prob.slack_index)]
             c = violations(adv_all, jnp.asarray(prob.head), slacks)
             penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
@@ -427,14 +434,14 @@ class Trainer:
         ``lr``: the clipped surrogate of the actor and the phase critic's normalised
         value loss."""
         cfg = self.config
-        mean, std = value_norm.stats()
-        scale = (mean[phase], std[phase])
+        scale = value_norm.stats()
 
         def minibatch(carry, mb: Batch):
             params, actor_opt, critic_opt = carry
             grads, info = jax.grad(self._loss, has_aux=True)(params, mb, phase, scale)
             a_up, actor_opt = self.optimizer.update(grads["actor"], actor_opt)
-            c_up, critic_opt = self.optimizer.update(grads["critics"], critic_opt)
+            c_up, critic_opt = self.optimizer.update(self._trainable(grads["critics"], phase),
+                                                     critic_opt)
             params = {"actor": optax.apply_updates(params["actor"], a_up),
                       "critics": optax.apply_updates(params["critics"], c_up)}
             return (params, actor_opt, critic_opt), info
@@ -464,14 +471,40 @@ class Trainer:
                                mb.weight)
         ent = pi.entropy().mean()
         mean, std = scale
-        out = self.critics.head(params["critics"], phase, mb.obs)  # [B, n_out]
-        vl = 0.5 * weighted_mean((out[:, 0] - (mb.target - mean) / std) ** 2, mb.weight)
+        if mb.q_target is None:
+            value = self.critics.head(params["critics"], phase, mb.obs)[:, 0]
+        else:
+            out = self.critics.apply({"params": params["critics"]}, mb.obs)  # [B, P, 1 + A]
+            value = out[:, phase, 0]
+            action = mb.action[:, None, None].astype(jnp.int32)
+            adv = jnp.take_along_axis(out[..., 1:], action, -1)[..., 0]  # [B, P]
+            heads = (jnp.arange(self.problem.n_phases) <= phase).astype(jnp.float32)
+            adv_loss = jnp.mean((adv - mb.q_target / std) ** 2, axis=0) @ heads
+        vl = 0.5 * weighted_mean((value - (mb.target - mean[phase]) / std[phase]) ** 2,
+                                 mb.weight)
         if mb.q_target is not None:
-            q = jnp.take_along_axis(out[:, 1:], mb.action[:, None].astype(jnp.int32), 1)
-            vl = vl + 0.5 * jnp.mean((q[:, 0] - mb.q_target / std) ** 2)
+            vl = vl + 0.5 * adv_loss
         total = pg - cfg.ent_coef * ent + cfg.vf_coef * vl
         kl = weighted_mean((jnp.exp(log_ratio) - 1) - log_ratio, mb.weight)
         return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent, "approx_kl": kl}
+
+    def _trainable(self, grads: dict, phase: jax.Array) -> dict:
+        """The critics' gradient restricted to what ``phase`` trains: its own head and,
+        in the restriction form, the advantage outputs of the earlier heads (the
+        output layer's columns ``1:``; their hidden layers and values stay frozen)."""
+        if not self.restricts:
+            return grads  # only the phase's head is in the loss
+        heads = jnp.arange(self.problem.n_phases)
+        own = (heads == phase).astype(jnp.float32)
+        columns = jnp.where(jnp.arange(self.critics.n_out) == 0, own[:, None],
+                            (heads <= phase).astype(jnp.float32)[:, None])  # [P, n_out]
+
+        def mask(path, g):
+            if jax.tree_util.keystr(path).startswith("['heads']['out']"):
+                return g * (columns[:, None, :] if g.ndim == 3 else columns)
+            return g * own.reshape(-1, *([1] * (g.ndim - 1)))
+
+        return jax.tree_util.tree_map_with_path(mask, grads)
 
     # ------------------------------------------------------------------- run
     def run(self, state: TrainState, slack: jax.Array, num_updates: int
