@@ -7,6 +7,7 @@ import pytest
 from tpo.algo.lagrangian import (
     admissible,
     ancestral_advantages,
+    below_best,
     lagrangian_advantages,
     violations,
 )
@@ -75,6 +76,13 @@ def test_weights_leave_samples_out_of_the_normalisation_and_the_surrogate():
     adv = jnp.array([1.0, -1.0, 5.0])
     assert float(clipped_surrogate(log_ratio, adv, 0.2, w)) == pytest.approx(
         float(clipped_surrogate(log_ratio[:2], adv[:2], 0.2)))
+
+
+def test_below_best_measures_against_the_best_allowed_action():
+    # Q - V = (1, 3, 2): against the best of {0, 2} (Q - V = 2): (-1, 1, 0)
+    adv = jnp.array([1.0, 3.0, 2.0])
+    assert below_best(adv, jnp.array([True, False, True])).tolist() == [-1.0, 1.0, 0.0]
+    assert below_best(adv + 7.0, jnp.ones(3, bool)).tolist() == [-2.0, 0.0, -1.0]
 
 
 def test_admissible_actions_by_hand():

@@ -10,6 +10,7 @@ from tpo.algo import TPO, TPOConfig
 from tpo.errors import TPOError
 
 CONFIG = TPOConfig(num_envs=8, num_steps=32)
+RESTRICTED = TPOConfig(num_envs=8, num_steps=32, constraint="restriction", completion=True)
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +37,21 @@ def test_save_and_load_give_the_same_policy(model, tmp_path):
     assert loaded.evaluate(episodes=4)["exact"] == model.evaluate(episodes=4)["exact"]
 
 
+def test_a_restricted_model_acts_within_its_last_phase_and_round_trips(tmp_path):
+    model = TPO("small", "A>G", slack=0, config=RESTRICTED, seed=2).learn(3 * 8 * 32 * 3)
+    trainer = model.trainer
+    assert trainer.problem.phase_names == ("avoid", "goal", "avoid (completion)")
+    obs = model.eval_env.tabular_observations()
+    acting = trainer.acting(model.state, trainer.slack_array())
+    assert int(acting.phase) == 2
+    allowed = np.asarray(trainer.allowed(acting, obs))
+    actions = model.predict(obs)
+    assert allowed[np.arange(len(obs)), actions].all()
+    loaded = TPO.load(model.save(tmp_path / "run"))
+    assert np.array_equal(loaded.predict(obs), actions)
+    assert loaded.evaluate(episodes=2)["exact"] == model.evaluate(episodes=2)["exact"]
+
+
 def test_save_refuses_to_overwrite(model, tmp_path):
     path = model.save(tmp_path / "run")
     before = (path / "state.msgpack").read_bytes()
@@ -46,11 +62,12 @@ def test_save_refuses_to_overwrite(model, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no temporary left behind
 
 
-def test_a_model_saved_mid_training_resumes_to_the_same_state(tmp_path):
-    total = 8 * 32 * 6
-    whole = TPO("small", "M>A>G", slack=[100, 0], config=CONFIG, seed=1).learn(
+@pytest.mark.parametrize("config", [CONFIG, RESTRICTED], ids=["penalty", "restriction"])
+def test_a_model_saved_mid_training_resumes_to_the_same_state(tmp_path, config):
+    total = 8 * 32 * 15  # 15 updates: whole phases of 3 (penalty) and 5 (completion)
+    whole = TPO("small", "M>A>G", slack=[100, 0], config=config, seed=1).learn(
         total, chunk_updates=2)
-    part = TPO("small", "M>A>G", slack=[100, 0], config=CONFIG, seed=1)
+    part = TPO("small", "M>A>G", slack=[100, 0], config=config, seed=1)
     part.learn(total, chunk_updates=2, callback=lambda m, n: n < 3)  # stops after 4
     assert int(part.state.update) == 4 and not part.finished
     resumed = TPO.load(part.save(tmp_path / "ckpt")).resume(chunk_updates=2)

@@ -34,32 +34,39 @@ def test_plain_ppo_learns_the_goal_exactly(small, seeds, at_least):
     at_least(0.8, np.abs(goal - best) <= 1e-6, {"exact goal": goal.tolist()})
 
 
-def test_later_phases_leave_earlier_critics_frozen(small):
+@pytest.mark.parametrize("constraint", ["penalty", "restriction"])
+def test_later_phases_leave_earlier_critics_frozen(small, constraint):
     train_env, _ = small
     graph = ObjectiveGraph.parse("M>A>G", 0, objectives=OBJECTIVES)
-    trainer = Trainer(train_env, graph, TPOConfig(num_envs=4, num_steps=32), 3 * 4 * 32 * 2)
+    config = TPOConfig(num_envs=4, num_steps=32, constraint=constraint)
+    trainer = Trainer(train_env, graph, config, 3 * 4 * 32 * 2)
     state = trainer.init(jax.random.key(0))
     run = jax.jit(trainer.run, static_argnums=2)
     monitor, goal = 0, 2  # critic heads are phases, in topological order
     after_first, _ = run(state, trainer.slack_array(), int(trainer.phase_start[1]))
     final, metrics = run(after_first, trainer.slack_array(),
                          trainer.num_updates - int(trainer.phase_start[1]))
-    head = jax.tree.map(lambda x: x[monitor], after_first.params["critics"])
-    later = jax.tree.map(lambda x: x[monitor], final.params["critics"])
-    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(head),
-                                                    jax.tree.leaves(later), strict=True))
     assert np.asarray(metrics["phase"]).tolist() == [1, 1, 2, 2]
-    first_goal = jax.tree.map(lambda x: x[goal], after_first.params["critics"])
-    trained_goal = jax.tree.map(lambda x: x[goal], final.params["critics"])
-    assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first_goal),
-                                                        jax.tree.leaves(trained_goal),
-                                                        strict=True))
+
+    def head(state, i):
+        return jax.tree.map(lambda x: np.asarray(x[i]), state.params["critics"]["heads"])
+
+    first, later = head(after_first, monitor), head(final, monitor)
+    for layer in ("layer_0", "layer_1"):  # the frozen head's hidden layers and its value
+        assert all(np.array_equal(first[layer][p], later[layer][p]) for p in first[layer])
+    out_first, out_later = first["out"]["kernel"], later["out"]["kernel"]
+    assert np.array_equal(out_first[:, 0], out_later[:, 0])
+    # restriction: its advantage outputs keep learning (on the frozen hidden layers)
+    assert np.array_equal(out_first[:, 1:], out_later[:, 1:]) == (constraint == "penalty")
+    trained_goal, first_goal = head(final, goal), head(after_first, goal)
+    assert not np.array_equal(first_goal["layer_0"]["kernel"],
+                              trained_goal["layer_0"]["kernel"])
 
 
-def test_the_restriction_form_adds_completion_phases_at_zero_slack():
+def test_completion_phases_follow_the_leaf_at_zero_slack():
     low, high = np.full(3, -1.0), np.ones(3)
     chain = Problem.build(ObjectiveGraph.parse("M>A>G", [1, 2], objectives=OBJECTIVES),
-                          OBJECTIVES, TPOConfig(), low, high, completion=True)
+                          OBJECTIVES, TPOConfig(completion=True), low, high)
     m, a, g = (OBJECTIVES.index(n) for n in ("monitor", "avoid", "goal"))
     assert chain.reward.tolist() == [m, a, g, m, a]  # then the leaf's ancestors, roots first
     assert chain.phase_names[3:] == ("monitor (completion)", "avoid (completion)")
@@ -70,19 +77,20 @@ def test_the_restriction_form_adds_completion_phases_at_zero_slack():
     assert chain.active.tolist() == [[0, 0, 0, 0], [1, 0, 0, 0], [1, 1, 0, 0],
                                      [1, 1, 1, 0], [1, 1, 1, 1]]
     fan = Problem.build(ObjectiveGraph.parse("A>G, M>G", objectives=OBJECTIVES),
-                        OBJECTIVES, TPOConfig(), low, high, completion=True)
+                        OBJECTIVES, TPOConfig(completion=True), low, high)
     assert fan.reward.tolist() == [a, m, g, a, m]
     assert fan.active.tolist() == [[0, 0, 0, 0], [0, 0, 0, 0], [1, 1, 0, 0],
                                    [1, 1, 1, 0], [1, 1, 1, 1]]
     paper = Problem.build(ObjectiveGraph.parse("M>A>G", objectives=OBJECTIVES),
-                          OBJECTIVES, TPOConfig(), low, high, completion=False)
+                          OBJECTIVES, TPOConfig(), low, high)
     assert paper.reward.tolist() == [m, a, g] and paper.head.tolist() == [0, 1]
 
 
 def test_restricted_rollouts_act_within_the_admissible_actions(small):
     train_env, _ = small
     graph = ObjectiveGraph.parse("A>G", 0, objectives=OBJECTIVES)
-    config = TPOConfig(num_envs=8, num_steps=64, constraint="restriction", explore=0.25)
+    config = TPOConfig(num_envs=8, num_steps=64, constraint="restriction", completion=True,
+                       explore=0.25)
     trainer = Trainer(train_env, graph, config, 3 * config.batch_size * 3)
     assert trainer.restricts and trainer.problem.n_phases == 3
     state = trainer.init(jax.random.key(0))

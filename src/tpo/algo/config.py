@@ -56,13 +56,16 @@ class TPOConfig:
     activation: str = field(default="tanh", metadata={"choices": ("tanh", "relu")})
     """activation of the hidden layers: tanh or relu"""
     constraint: str = field(default="penalty", metadata={"choices": CONSTRAINTS})
-    """how a phase keeps its ancestors' slacks: restriction (it samples only the actions
-    that the frozen ancestral Q-critics admit, and completion phases follow the leaf;
-    discrete actions) or penalty (the paper's Algorithm 1 with the Lagrangian penalty;
-    always used for continuous actions); see docs/design.md §5"""
-    tolerance: float = 0.05
+    """how a phase keeps its ancestors' slacks: penalty (the paper's Algorithm 1, the
+    Lagrangian penalty; always used for continuous actions) or restriction (it samples
+    only the actions that the frozen ancestral critics admit; discrete actions); see
+    docs/design.md §5"""
+    completion: bool = False
+    """after the leaf, one phase per ancestor (roots first) that keeps the leaf's value
+    and the earlier completion phases' at zero slack: the tie rule, learned"""
+    tolerance: float = 0.2
     """restriction: an action is admissible when its violation of an edge is at most
-    the slack plus this many standard deviations of the parent critic's targets"""
+    the slack plus this share of the parent objective's one-step reward range"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of
@@ -75,7 +78,7 @@ class TPOConfig:
     see docs/tpo-algorithm.md"""
     phase_fractions: tuple[float, ...] | None = field(default=None)
     """share of the timesteps of each phase: the objectives in topological order, then
-    (restriction) the completion phases (default: equal)"""
+    the completion phases (default: equal)"""
     carry_temperature: float = 5.0
     """the policy carries over from phase to phase with its logits divided by this
     temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
@@ -116,8 +119,9 @@ class TPOConfig:
         if self.constraint not in CONSTRAINTS:
             raise ConfigError(f"constraint must be one of {', '.join(CONSTRAINTS)}, "
                               f"got {self.constraint!r}")
-        if not isinstance(self.anneal_lr, bool):
-            raise ConfigError(f"anneal_lr must be true or false, got {self.anneal_lr!r}")
+        for name in ("anneal_lr", "completion"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.advantage not in ADVANTAGE_FORMS:
             raise ConfigError(f"advantage must be one of {', '.join(ADVANTAGE_FORMS)}, "
                               f"got {self.advantage!r}")

@@ -46,6 +46,16 @@ def violations(advantages: jax.Array, parents: jax.Array, slack: jax.Array) -> j
     return jnp.maximum(0.0, -advantages[..., parents] - slack)
 
 
+def below_best(advantages: jax.Array, allowed: jax.Array) -> jax.Array:
+    """``Q(s, a) - max_{a' in allowed} Q(s, a')`` from advantages ``Q - V`` (any ``V``:
+    it cancels), ``[..., A]`` each: how far each action falls below the best allowed
+    one. LAR measures violations this way (``V_w = max_{A_w} Q_w``); on learned
+    critics it also cancels any error the advantages share at a state."""
+    check_shapes(advantages, allowed=allowed)
+    return advantages - jnp.max(jnp.where(allowed, advantages, -jnp.inf), axis=-1,
+                                keepdims=True)
+
+
 def admissible(advantages: jax.Array, slack: jax.Array, active: jax.Array) -> jax.Array:
     """LAR's admissible actions from learned advantages (docs/design.md §2): the
     actions of least total violation

@@ -20,6 +20,9 @@ import numpy as np
 from tpo.algo.distributions import Categorical, DiagGaussian, Distribution
 
 ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
+#: a critic's advantage outputs are in this fraction of its value unit: advantages
+#: are small beside values, and their loss would otherwise hardly move the network
+ADVANTAGE_UNIT = 0.1
 
 
 def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
@@ -138,7 +141,9 @@ class ValueNorm(NamedTuple):
     def denormalize(self, out: jax.Array) -> jax.Array:
         """Values (and advantages) from the critics' outputs ``[..., k, n_out]``."""
         mean, std = self.stats()
-        return out * std[:, None] + jnp.where(jnp.arange(out.shape[-1]) == 0, mean[:, None], 0.0)
+        first = jnp.arange(out.shape[-1]) == 0
+        return out * std[:, None] * jnp.where(first, 1.0, ADVANTAGE_UNIT) + jnp.where(
+            first, mean[:, None], 0.0)
 
     def update(self, targets: jax.Array, pick: jax.Array, decay: float = 0.9) -> ValueNorm:
         """Fold the batch ``targets`` (of the objective ``pick`` one-hots) into the stats."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,7 @@ from tpo.algo.evaluate import exact_evaluation, monte_carlo, summarize
 from tpo.algo.guard import check_finite
 from tpo.algo.persist import read_model, restore_state, save_model
 from tpo.algo.runners import HostRunner, Runner, jax_runner
-from tpo.algo.train import Trainer, TrainState
+from tpo.algo.train import Problem, Trainer, TrainState
 from tpo.envs.gym_adapter import EnvFactory, HostEnv
 from tpo.envs.spec import Env, from_spec, make_env
 from tpo.errors import TPOError
@@ -69,6 +70,12 @@ class TPO:
     def host(self) -> bool:
         """Whether the env is a Gymnasium env stepped on the host."""
         return isinstance(self.env, HostEnv)
+
+    @cached_property
+    def phases(self) -> tuple[str, ...]:
+        """The objective of every training phase, in order (completion phases marked)."""
+        return Problem.build(self.graph, self.env.objectives, self.config, self.env.reward_low,
+                             self.env.reward_high).phase_names
 
     @property
     def finished(self) -> bool:

@@ -44,11 +44,19 @@ from tpo.algo.episodes import EpisodeStats
 from tpo.algo.lagrangian import (
     admissible,
     ancestral_advantages,
+    below_best,
     lagrangian_advantages,
     violations,
 )
 from tpo.algo.losses import clipped_surrogate, normalize, weighted_mean
-from tpo.algo.networks import Actor, Critics, ValueNorm, init_params, scale_output
+from tpo.algo.networks import (
+    ADVANTAGE_UNIT,
+    Actor,
+    Critics,
+    ValueNorm,
+    init_params,
+    scale_output,
+)
 from tpo.graph import ObjectiveGraph
 
 
@@ -102,8 +110,8 @@ class Problem:
     and the constraints each phase keeps (docs/design.md §5).
 
     Phase ``p`` trains critic head ``p`` on reward column ``reward[p]``: first the
-    graph's objectives in topological order (Algorithm 1); then, in the
-    restriction form, one *completion* phase per ancestor of the leaf, roots
+    graph's objectives in topological order (Algorithm 1); then, with
+    ``completion``, one *completion* phase per ancestor of the leaf, roots
     first, which keeps the leaf's and the earlier completion phases' values at
     zero slack (the tie rule of docs/design.md §2, learned).
 
@@ -127,7 +135,7 @@ class Problem:
 
     @classmethod
     def build(cls, graph: ObjectiveGraph, objectives: Sequence[str], config: TPOConfig,
-              reward_low: np.ndarray, reward_high: np.ndarray, completion: bool) -> Problem:
+              reward_low: np.ndarray, reward_high: np.ndarray) -> Problem:
         graph = graph.bind(tuple(objectives))
         col = {n: i for i, n in enumerate(objectives)}
         phase = {n: i for i, n in enumerate(graph.order)}
@@ -136,7 +144,7 @@ class Problem:
         rows = [[j for j, e in enumerate(graph.edges) if e in graph.ancestral_edges(n)]
                 for n in graph.order]
         reward = [col[n] for n in graph.order]
-        if completion and n_edges:
+        if config.completion and n_edges:
             kept = [*rows[-1], len(constraints)]
             constraints.append((phase[graph.leaf], n_edges))  # the leaf, at zero slack
             for i, name in enumerate(graph.order[:-1]):
@@ -194,7 +202,10 @@ class Trainer:
         self.restricts = (config.constraint == "restriction" and bool(graph.edges)
                           and isinstance(space, gym.spaces.Discrete))
         self.problem = Problem.build(graph, env.objectives, config, env.reward_low,
-                                     env.reward_high, completion=self.restricts)
+                                     env.reward_high)
+        #: the one-step reward range of every objective (1 where unknown)
+        self.reward_scale = value_bounds(env.reward_low, env.reward_high, config.gamma) * (
+            1 - config.gamma)
         self.actor = Actor.for_space(space, config.hidden, config.activation)
         n_out = 1 + int(space.n) if self.restricts else 1
         self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation)
@@ -280,19 +291,26 @@ class Trainer:
 
     def allowed(self, acting: Acting, obs: jax.Array) -> jax.Array | None:
         """The admissible actions ``[..., A]`` of ``acting.phase`` at ``obs`` (None in
-        the penalty form): :func:`tpo.algo.lagrangian.admissible` on the advantage
-        outputs of the frozen critics, each edge's slack widened by ``tolerance``
-        standard deviations of its parent critic's targets."""
+        the penalty form): LAR's sets computed phase by phase on the frozen critics'
+        advantage outputs. A constraint on head ``w`` measures an action against the
+        best action of ``A_w(s)`` (:func:`tpo.algo.lagrangian.below_best`, as LAR's
+        ``V_w = max_{A_w} Q_w``), its edge's slack widened by ``tolerance`` times the
+        objective's one-step reward range; :func:`tpo.algo.lagrangian.admissible`
+        then keeps the actions of least total violation."""
         if not self.restricts:
             return None
         prob = self.problem
         head = jnp.asarray(prob.head)
-        out = acting.value_norm.denormalize(
+        adv = acting.value_norm.denormalize(
             self.critics.apply({"params": acting.critics}, obs))[..., head, 1:]  # [..., C, A]
-        _, std = acting.value_norm.stats()
         slack = (jnp.concatenate([acting.slack, jnp.zeros(1)])[jnp.asarray(prob.slack_index)]
-                 + self.config.tolerance * std[head])
-        return admissible(out, slack, jnp.asarray(prob.active)[acting.phase])
+                 + self.config.tolerance * jnp.asarray(self.reward_scale[prob.reward[prob.head]]))
+        sets = [jnp.ones(adv.shape[:-2] + adv.shape[-1:], bool)]  # A_0: every action
+        for p in range(1, prob.n_phases):  # a phase's constraints read earlier heads only
+            known = jnp.stack(sets + sets[:1] * (prob.n_phases - p), axis=-2)  # [..., P, A]
+            gaps = below_best(adv, known[..., head, :])
+            sets.append(admissible(gaps, slack, jnp.asarray(prob.active[p])))
+        return jnp.stack(sets, axis=-2)[..., acting.phase, :]
 
     def values(self, state: TrainState, obs: jax.Array) -> jax.Array:
         """Every critic head's outputs ``[..., P, n_out]`` at ``obs``, as values
@@ -409,7 +427,7 @@ class Trainer:
         reward, v, next_v = rewards @ pick, value @ pick, next_value @ pick
         adv_all = ancestral_advantages(rewards, value, next_value, rollout.terminated,
                                        cfg.gamma)
-        if self.restricts:
+        if self.restricts:  # the restriction alone keeps the slack
             penalty = jnp.zeros_like(reward)
             q_target = adv_all
         else:
@@ -479,7 +497,7 @@ class Trainer:
             action = mb.action[:, None, None].astype(jnp.int32)
             adv = jnp.take_along_axis(out[..., 1:], action, -1)[..., 0]  # [B, P]
             heads = (jnp.arange(self.problem.n_phases) <= phase).astype(jnp.float32)
-            adv_loss = jnp.mean((adv - mb.q_target / std) ** 2, axis=0) @ heads
+            adv_loss = jnp.mean((adv - mb.q_target / (std * ADVANTAGE_UNIT)) ** 2, axis=0) @ heads
         vl = 0.5 * weighted_mean((value - (mb.target - mean[phase]) / std[phase]) ** 2,
                                  mb.weight)
         if mb.q_target is not None:

@@ -127,7 +127,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     def progress(model, metrics: dict, updates: int) -> None:
         bar.update(updates * spec.config.batch_size - bar.n)
-        bar.set_postfix(phase=model.graph.order[int(metrics["phase"][-1])],
+        bar.set_postfix(phase=model.phases[int(metrics["phase"][-1])],
                         ret="/".join(f"{r:.1f}" for r in metrics["episode_return"][-1]))
 
     try:

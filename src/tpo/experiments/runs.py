@@ -30,7 +30,8 @@ from tpo.algo import TPO
 from tpo.atomic import write_atomic
 from tpo.experiments.runspec import RunError, RunSpec
 
-METRICS = ("episode_return", "episode_length", "penalty", "violation_rate", "policy_loss",
+METRICS = ("episode_return", "episode_length", "penalty", "violation_rate", "excluded",
+           "policy_loss",
            "value_loss", "entropy", "approx_kl", "lr")
 CHECKPOINTS = 10  # per run, at chunk boundaries
 
@@ -118,7 +119,7 @@ def train_run(run_dir: str | Path, episodes: int = 100, progress: Progress | Non
     spec = RunSpec.from_toml(run_dir / "config.toml")
     saved = checkpoints(run_dir)
     model = TPO.load(saved[-1]) if saved else spec.model()
-    log = MetricsLog(run_dir, model.env.objectives, model.graph.order, spec.config.batch_size,
+    log = MetricsLog(run_dir, model.env.objectives, model.phases, spec.config.batch_size,
                      int(model.state.update) if saved else 0)
 
     def on_chunk(metrics: dict[str, np.ndarray], done: int) -> None:
