@@ -95,7 +95,6 @@ def test_restricted_rollouts_act_within_the_admissible_actions(small):
     assert trainer.restricts and trainer.problem.n_phases == 3
     state = trainer.init(jax.random.key(0))
     state, _ = jax.jit(trainer.run, static_argnums=2)(state, trainer.slack_array(), 4)
-    state = trainer.begin_phase(state)
     _, rollout, _ = trainer.collect(state, trainer.slack_array())
     allowed = np.asarray(rollout.allowed)
     taken = np.take_along_axis(allowed, np.asarray(rollout.action)[..., None], -1)[..., 0]

@@ -56,8 +56,8 @@ class HostRunner:
         del length  # nothing is compiled per chunk here
         history = []
         for _ in range(n):
-            state, rollout, episodes = self.collect(self._begin(state), slack)
-            state, metrics = self._learn(state, slack, rollout, episodes)
+            state, rollout, episodes = self.collect(state, slack)
+            state, metrics = self._learn(self._begin(state), slack, rollout, episodes)
             history.append(metrics)
         return state, jax.tree.map(lambda *x: jnp.stack(x), *history)
 
