@@ -81,6 +81,10 @@ CASES = [
     (["reproduce", "--out", "{tmp}/x", "--slacks", "5,1"], "at least two increasing values"),
     (["reproduce", "--out", "{tmp}/x", "--seeds", "0"], "--seeds must be at least 1"),
     (["reproduce", "--out", "{tmp}/x", "--map", "nowhere"], "no bundled map or file"),
+    # argparse's own errors, on one line too
+    (["reproduce", "--out", "{tmp}/x", "--constraint", "bogus"], "invalid choice: 'bogus'"),
+    (["reproduce", "--out", "{tmp}/x", "--seeds", "abc"], "invalid int value: 'abc'"),
+    (["train", "--map", "small", "--bogus"], "unrecognized arguments: --bogus"),
     # user environments
     (["train", "--env", "gym:CartPole-v1", "--objectives", "a", "--dag", "a",
       "--out", "{tmp}/r"], "has a scalar reward"),

@@ -96,3 +96,8 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--seeds", "3", "--out", str(out), "--quiet"]) == 2
     assert "holds a reproduction with other settings" in capsys.readouterr().err
+    # the other form of the constraint is another reproduction, in its own directory
+    assert main(["reproduce", "--quick", "--constraint", "restriction", "--out", str(out),
+                 "--quiet"]) == 2
+    assert "'constraint': 'penalty'" in capsys.readouterr().err
+    assert json.loads((out / "settings.json").read_text())["constraint"] == "penalty"

@@ -12,8 +12,9 @@ import time
 from collections.abc import Sequence
 from itertools import pairwise
 from pathlib import Path
+from typing import NoReturn
 
-from tpo.algo.config import TPOConfig
+from tpo.algo.config import CONSTRAINTS, TPOConfig
 from tpo.cli.options import UsageError, add_fields, read_fields
 from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
 from tpo.errors import TPOError
@@ -201,6 +202,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         if args.workers < 1:
             raise UsageError("--workers must be at least 1")
         changes["workers"] = args.workers
+    if args.constraint is not None:
+        changes["constraint"] = args.constraint
+    if args.completion:
+        changes["completion"] = True
     settings = replace(settings, **changes)
     weights = {p.name: len(xs) * len(settings.seeds) * settings.steps
                for p, xs in settings.jobs()}
@@ -220,8 +225,15 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------- parser
+class OneLineParser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line, as every other error of tpo."""
+
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="tpo", description="Multi-objective RL with prioritised, slack-tolerant objectives.")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -270,6 +282,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=int, help="number of seeds (default 5)")
     p.add_argument("--steps", type=int, help="env steps per configuration and seed")
     p.add_argument("--workers", type=int, help="worker processes (default 2)")
+    p.add_argument("--constraint", choices=CONSTRAINTS,
+                   help="the form every run keeps the slacks in (default penalty, the "
+                        "paper's); run each form into its own --out to compare them")
+    p.add_argument("--completion", action="store_true",
+                   help="completion phases after the leaf (docs/design.md §5)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_reproduce)
 
@@ -281,9 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
     try:
+        args = build_parser().parse_args(argv)
         return args.handler(args)
     except TPOError as err:
         print(f"tpo: error: {err}", file=sys.stderr)

@@ -47,6 +47,8 @@ class Settings:
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
     steps: int = 1_500_000
     workers: int = 2
+    constraint: str = "penalty"  # TPOConfig.constraint: the form every run learns with
+    completion: bool = False  # TPOConfig.completion
 
     @classmethod
     def quick(cls) -> Settings:

@@ -55,13 +55,14 @@ def run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path
     from tpo.graph import ObjectiveGraph
 
     env = GridNav(load_map(settings.map), random_start=True)
+    config = TPOConfig(constraint=settings.constraint, completion=settings.completion)
     n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0, objectives=OBJECTIVES).edges)
     slacks = [panel.slack(x, n_edges) for x in xs]
     t0 = time.monotonic()
-    result = run_sweep(env, panel.dag, slacks, settings.seeds, TPOConfig(), settings.steps,
+    result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps,
                        progress=lambda done, total: report_progress(panel.name, done / total),
                        checkpoint=out / "panels" / f"{panel.name}.ckpt")
-    grid = env.tabular(TPOConfig().gamma)
+    grid = env.tabular(config.gamma)
     paths = [[grid.rollout(pi).tolist() for pi in row] for row in result.policies]
     record = {"panel": asdict(panel), "x": xs, "slacks": slacks, "seeds": list(settings.seeds),
               "objectives": list(result.objectives), "exact": result.exact.tolist(),
