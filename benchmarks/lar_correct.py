@@ -19,7 +19,7 @@ import time
 
 from tpo.algo import TPOConfig
 from tpo.envs import load_map
-from tpo.envs.grid import GridNav
+from tpo.envs.grid import OBSERVATIONS, GridNav
 from tpo.experiments.sweep import run_sweep
 
 # The four paper DAGs at slack 0 and 100, and Figure 3's M>A>G (100, 0).
@@ -32,12 +32,13 @@ def main() -> None:
     parser.add_argument("--map", default="small")
     parser.add_argument("--problems", nargs="+", default=list(PROBLEMS), metavar="DAG:SLACK")
     parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--observation", default="factored", choices=OBSERVATIONS)
     parser.add_argument("--steps", type=int, default=600_000)
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="TPOConfig fields, as TOML values (constraint='penalty')")
     args = parser.parse_args()
     config = TPOConfig.from_toml("\n".join(args.set))
-    env = GridNav(load_map(args.map), random_start=True)
+    env = GridNav(load_map(args.map), random_start=True, observation=args.observation)
     totals = dict.fromkeys(("lar_correct", "strict", "same_values", "runs"), 0)
     rows = []
     print(f"{'problem':<22} {'correct':>8} {'strict':>7} {'same':>5}  learned (mean) / LAR")
@@ -63,7 +64,8 @@ def main() -> None:
     n = totals["runs"]
     print(f"{'total':<22} {totals['lar_correct']:>5}/{n} {totals['strict']:>4}/{n} "
           f"{totals['same_values']:>2}/{n}")
-    print(json.dumps({"map": args.map, "steps": args.steps, "seeds": args.seeds,
+    print(json.dumps({"map": args.map, "observation": args.observation, "steps": args.steps,
+                      "seeds": args.seeds,
                       "config": config.to_dict(),
                       "totals": totals, "problems": rows}))
 
