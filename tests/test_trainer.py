@@ -7,7 +7,8 @@ import pytest
 
 from tpo.algo.config import ConfigError, TPOConfig
 from tpo.algo.networks import scale_output
-from tpo.algo.train import Problem, Trainer
+from tpo.algo.phases import Problem
+from tpo.algo.train import Trainer
 from tpo.envs import OBJECTIVES, load_map
 from tpo.envs.grid import GridNav
 from tpo.experiments.sweep import run_sweep

@@ -8,12 +8,13 @@ from tpo.lazy import lazy_names
 if TYPE_CHECKING:  # what type checkers and IDEs see
     from tpo.algo.config import ConfigError, TPOConfig
     from tpo.algo.guard import NonFiniteError
+    from tpo.algo.phases import Problem
     from tpo.algo.tpo import TPO
-    from tpo.algo.train import Problem, Trainer, TrainState
+    from tpo.algo.train import Trainer, TrainState
 
 _LAZY = {"TPO": "tpo.algo.tpo", "ConfigError": "tpo.algo.config",
          "TPOConfig": "tpo.algo.config", "NonFiniteError": "tpo.algo.guard",
-         "Problem": "tpo.algo.train", "Trainer": "tpo.algo.train",
+         "Problem": "tpo.algo.phases", "Trainer": "tpo.algo.train",
          "TrainState": "tpo.algo.train"}
 
 __all__ = ["TPO", "ConfigError", "NonFiniteError", "Problem", "TPOConfig", "TrainState",

@@ -14,7 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tpo.algo.train import Acting, Rollout, Trainer, TrainState
+from tpo.algo.phases import Acting
+from tpo.algo.train import Rollout, Trainer, TrainState
 from tpo.envs.gym_adapter import EnvError, HostEnv
 
 Runner = Callable[[TrainState, jax.Array, int, int], tuple[TrainState, dict]]

@@ -18,8 +18,9 @@ from tpo.algo.config import TPOConfig
 from tpo.algo.evaluate import exact_evaluation, monte_carlo, summarize
 from tpo.algo.guard import check_finite
 from tpo.algo.persist import read_model, restore_state, save_model
+from tpo.algo.phases import Problem
 from tpo.algo.runners import HostRunner, Runner, jax_runner
-from tpo.algo.train import Problem, Trainer, TrainState
+from tpo.algo.train import Trainer, TrainState
 from tpo.envs.gym_adapter import EnvFactory, HostEnv
 from tpo.envs.spec import Env, from_spec, make_env
 from tpo.errors import TPOError

@@ -21,7 +21,7 @@ import numpy as np
 from tpo.algo import TPOConfig, Trainer, TrainState
 from tpo.algo.evaluate import episode_returns
 from tpo.algo.persist import restore_state, state_bytes
-from tpo.algo.train import Acting
+from tpo.algo.phases import Acting
 from tpo.atomic import write_atomic
 from tpo.envs.grid import GridNav
 from tpo.envs.spec import from_spec

@@ -1,0 +1,108 @@
+"""The phases of a TPO run and the constraints each keeps (docs/design.md §5), as
+the static arrays the compiled program reads, and what a run's policy needs to
+act (:class:`Acting`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from tpo.algo.config import TPOConfig
+from tpo.algo.networks import ValueNorm
+from tpo.graph import ObjectiveGraph
+
+
+@dataclass(frozen=True)
+class Problem:
+    """The static structure of a run that the compiled program needs: its phases
+    and the constraints each phase keeps (docs/design.md §5).
+
+    Phase ``p`` trains critic head ``p`` on reward column ``reward[p]``: first the
+    graph's objectives in topological order (Algorithm 1); then, with
+    ``completion``, one *completion* phase per ancestor of the leaf, roots
+    first, which keeps the leaf's and the earlier completion phases' values at
+    zero slack (the tie rule of docs/design.md §2, learned).
+
+    Attributes:
+        objectives: the env's objective names (reward columns).
+        graph: the DAG, bound to ``objectives``.
+        reward: ``[P]`` reward column of every phase.
+        head: ``[C]`` the critic head (a phase) whose values constraint ``c`` reads.
+        slack_index: ``[C]`` its slack: an edge's index, or ``n_edges`` for zero.
+        active: ``[P, C]`` 1 where phase ``p`` keeps constraint ``c``.
+        beta: ``[P]`` penalty multiplier of every phase.
+    """
+
+    objectives: tuple[str, ...]
+    graph: ObjectiveGraph
+    reward: np.ndarray
+    head: np.ndarray
+    slack_index: np.ndarray
+    active: np.ndarray
+    beta: np.ndarray
+
+    @classmethod
+    def build(cls, graph: ObjectiveGraph, objectives: Sequence[str], config: TPOConfig,
+              reward_low: np.ndarray, reward_high: np.ndarray) -> Problem:
+        graph = graph.bind(tuple(objectives))
+        col = {n: i for i, n in enumerate(objectives)}
+        phase = {n: i for i, n in enumerate(graph.order)}
+        n_edges = len(graph.edges)
+        constraints = [(phase[e.parent], j) for j, e in enumerate(graph.edges)]
+        rows = [[j for j, e in enumerate(graph.edges) if e in graph.ancestral_edges(n)]
+                for n in graph.order]
+        reward = [col[n] for n in graph.order]
+        if config.completion and n_edges:
+            kept = [*rows[-1], len(constraints)]
+            constraints.append((phase[graph.leaf], n_edges))  # the leaf, at zero slack
+            for i, name in enumerate(graph.order[:-1]):
+                if i:  # the previous completion phase, at zero slack
+                    kept = [*kept, len(constraints)]
+                    constraints.append((len(reward) - 1, n_edges))
+                rows.append(kept)
+                reward.append(col[name])
+        active = np.zeros((len(rows), len(constraints)), np.float32)
+        for p, row in enumerate(rows):
+            active[p, row] = 1.0
+        reward_arr = np.array(reward, np.int32)
+        if config.beta == "auto":
+            beta = value_bounds(reward_low, reward_high, config.gamma)[reward_arr]
+        else:
+            beta = np.full(len(reward), float(config.beta))
+        pairs = np.array(constraints, np.int32).reshape(-1, 2)
+        return cls(tuple(objectives), graph, reward_arr, pairs[:, 0], pairs[:, 1], active,
+                   beta.astype(np.float32))
+
+    @property
+    def n_phases(self) -> int:
+        return len(self.reward)
+
+    @property
+    def phase_names(self) -> tuple[str, ...]:
+        """The objective of every phase; a completion phase is marked as such."""
+        order = self.graph.order
+        return order + tuple(f"{n} (completion)" for n in order[:self.n_phases - len(order)])
+
+
+class Acting(NamedTuple):
+    """What a run's policy needs to act (:meth:`Trainer.policy`): the actor, and in
+    the restriction form the frozen critics, their value statistics, the slack
+    and the phase whose constraints hold."""
+
+    actor: dict
+    critics: dict
+    value_norm: ValueNorm
+    slack: jax.Array  # [n_edges]
+    phase: jax.Array  # int32 []
+
+
+def value_bounds(reward_low: np.ndarray, reward_high: np.ndarray, gamma: float) -> np.ndarray:
+    """The largest value difference of every objective,
+    ``max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)`` (1 where a bound is unknown)."""
+    lo, hi = np.asarray(reward_low, float), np.asarray(reward_high, float)
+    bound = np.maximum.reduce([np.abs(lo), np.abs(hi), hi - lo]) / (1 - gamma)
+    return np.where(np.isfinite(bound) & (bound > 0), bound, 1.0)
