@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo.config import TPOConfig
@@ -81,6 +82,11 @@ class Problem:
     def n_phases(self) -> int:
         return len(self.reward)
 
+    def constraint_slacks(self, slack: jax.Array) -> jax.Array:
+        """Every constraint's slack ``[C]`` from the edges' ``slack [n_edges]`` (zero
+        for the completion constraints)."""
+        return jnp.concatenate([slack, jnp.zeros(1)])[jnp.asarray(self.slack_index)]
+
     @property
     def phase_names(self) -> tuple[str, ...]:
         """The objective of every phase; a completion phase is marked as such."""
@@ -100,9 +106,22 @@ class Acting(NamedTuple):
     phase: jax.Array  # int32 []
 
 
+def reward_ranges(reward_low: np.ndarray, reward_high: np.ndarray) -> np.ndarray:
+    """The largest one-step reward difference of every objective,
+    ``max(|r_lo|, |r_hi|, r_hi - r_lo)`` (1 where a bound is unknown)."""
+    return _known(_range(reward_low, reward_high))
+
+
 def value_bounds(reward_low: np.ndarray, reward_high: np.ndarray, gamma: float) -> np.ndarray:
-    """The largest value difference of every objective,
-    ``max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)`` (1 where a bound is unknown)."""
+    """The largest value difference of every objective, ``reward_ranges / (1 - gamma)``
+    (1 where a bound is unknown)."""
+    return _known(_range(reward_low, reward_high) / (1 - gamma))
+
+
+def _range(reward_low: np.ndarray, reward_high: np.ndarray) -> np.ndarray:
     lo, hi = np.asarray(reward_low, float), np.asarray(reward_high, float)
-    bound = np.maximum.reduce([np.abs(lo), np.abs(hi), hi - lo]) / (1 - gamma)
+    return np.maximum.reduce([np.abs(lo), np.abs(hi), hi - lo])
+
+
+def _known(bound: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(bound) & (bound > 0), bound, 1.0)

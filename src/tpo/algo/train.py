@@ -55,7 +55,7 @@ from tpo.algo.networks import (
     init_params,
     scale_output,
 )
-from tpo.algo.phases import Acting, Problem, value_bounds
+from tpo.algo.phases import Acting, Problem, reward_ranges
 from tpo.graph import ObjectiveGraph
 
 
@@ -87,7 +87,7 @@ class Rollout(NamedTuple):
     terminated: jax.Array  # float: s_{t+1} is terminal (no bootstrap)
     done: jax.Array  # float: the episode ended (terminated or truncated)
     allowed: jax.Array | None  # [A] bool, the admissible actions (restriction form)
-    explore: jax.Array  # float: a uniform admissible action, not the policy's
+    explore: jax.Array  # float: a uniform random action, not the policy's
 
 
 class Batch(NamedTuple):
@@ -118,9 +118,10 @@ class Trainer:
                           and isinstance(space, gym.spaces.Discrete))
         self.problem = Problem.build(graph, env.objectives, config, env.reward_low,
                                      env.reward_high)
-        #: the one-step reward range of every objective (1 where unknown)
-        self.reward_scale = value_bounds(env.reward_low, env.reward_high, config.gamma) * (
-            1 - config.gamma)
+        #: restriction: each constraint's tolerance, a share of its parent's reward range
+        parents = self.problem.reward[self.problem.head]
+        self.tolerance = (config.tolerance * reward_ranges(env.reward_low, env.reward_high)
+                          [parents]).astype(np.float32)
         self.actor = Actor.for_space(space, config.hidden, config.activation)
         n_out = 1 + int(space.n) if self.restricts else 1
         self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation)
@@ -218,8 +219,7 @@ class Trainer:
         head = jnp.asarray(prob.head)
         adv = acting.value_norm.denormalize(
             self.critics.apply({"params": acting.critics}, obs))[..., head, 1:]  # [..., C, A]
-        slack = (jnp.concatenate([acting.slack, jnp.zeros(1)])[jnp.asarray(prob.slack_index)]
-                 + self.config.tolerance * jnp.asarray(self.reward_scale[prob.reward[prob.head]]))
+        slack = prob.constraint_slacks(acting.slack) + jnp.asarray(self.tolerance)
         sets = [jnp.ones(adv.shape[:-2] + adv.shape[-1:], bool)]  # A_0: every action
         for p in range(1, prob.n_phases):  # a phase's constraints read earlier heads only
             known = jnp.stack(sets + sets[:1] * (prob.n_phases - p), axis=-2)  # [..., P, A]
@@ -347,8 +347,7 @@ class Trainer:
             penalty = jnp.zeros_like(reward)
             q_target = adv_all
         else:
-            slacks = jnp.concatenate([slack, jnp.zeros(1)])[jnp.asarray(prob.slack_index)]
-            c = violations(adv_all, jnp.asarray(prob.head), slacks)
+            c = violations(adv_all, jnp.asarray(prob.head), prob.constraint_slacks(slack))
             penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
             q_target = None
         # An exploring step cuts the trace of the policy's returns before it.
@@ -407,6 +406,7 @@ class Trainer:
         mean, std = scale
         if mb.q_target is None:
             value = self.critics.head(params["critics"], phase, mb.obs)[:, 0]
+            adv_loss = 0.0
         else:
             out = self.critics.apply({"params": params["critics"]}, mb.obs)  # [B, P, 1 + A]
             value = out[:, phase, 0]
@@ -415,9 +415,7 @@ class Trainer:
             heads = (jnp.arange(self.problem.n_phases) <= phase).astype(jnp.float32)
             adv_loss = jnp.mean((adv - mb.q_target / (std * ADVANTAGE_UNIT)) ** 2, axis=0) @ heads
         vl = 0.5 * weighted_mean((value - (mb.target - mean[phase]) / std[phase]) ** 2,
-                                 mb.weight)
-        if mb.q_target is not None:
-            vl = vl + 0.5 * adv_loss
+                                 mb.weight) + 0.5 * adv_loss
         total = pg - cfg.ent_coef * ent + cfg.vf_coef * vl
         kl = weighted_mean((jnp.exp(log_ratio) - 1) - log_ratio, mb.weight)
         return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent, "approx_kl": kl}
