@@ -134,6 +134,20 @@ def test_phase_split_and_bad_budgets(small):
         Trainer(train_env, graph, TPOConfig(phase_fractions=(1, 1)), 10**6)
 
 
+def test_schedules_restart_with_every_phase(small):
+    """The learning rate anneals to 0 and the entropy weight from ``ent_coef`` to
+    ``ent_coef_end``, linearly within each phase (phases of 10, 10 and 20 updates)."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("M>A>G", objectives=OBJECTIVES)
+    config = TPOConfig(num_envs=4, num_steps=8, phase_fractions=(1, 1, 2),
+                       learning_rate=1e-3, ent_coef=0.1, ent_coef_end=0.02)
+    trainer = Trainer(train_env, graph, config, 4 * 8 * 40)
+    ent = [float(trainer.ent_coef(u)) for u in (0, 5, 10, 15, 20, 30)]
+    np.testing.assert_allclose(ent, [0.1, 0.06, 0.1, 0.06, 0.1, 0.06], rtol=1e-6)
+    lr = [float(trainer.learning_rate(u)) for u in (0, 5, 10, 30)]
+    np.testing.assert_allclose(lr, [1e-3, 5e-4, 1e-3, 5e-4], rtol=1e-6)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [

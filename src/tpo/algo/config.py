@@ -45,8 +45,10 @@ class TPOConfig:
     """GAE's lambda"""
     clip_eps: float = 0.2
     """PPO's clip range of the probability ratio"""
-    ent_coef: float = 0.01
-    """weight of the entropy bonus"""
+    ent_coef: float = 0.3
+    """weight of the entropy bonus at the start of every phase"""
+    ent_coef_end: float = 0.01
+    """weight of the entropy bonus at the end of every phase (linear in between)"""
     vf_coef: float = 0.5
     """weight of the value loss"""
     max_grad_norm: float = 0.5
@@ -93,7 +95,7 @@ class TPOConfig:
                               f"num_envs * num_steps ({self.num_envs * self.num_steps})")
         for name in ("learning_rate", "clip_eps", "max_grad_norm"):
             _positive(name, getattr(self, name))
-        for name in ("ent_coef", "vf_coef"):
+        for name in ("ent_coef", "ent_coef_end", "vf_coef"):
             _nonnegative(name, getattr(self, name))
         for name in ("gamma", "gae_lambda"):
             value = getattr(self, name)

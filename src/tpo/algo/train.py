@@ -141,16 +141,23 @@ class Trainer:
         self.phase_updates = shares
         self.phase_start = np.concatenate([[0], np.cumsum(shares)]).astype(np.int32)
         self.num_updates = int(self.phase_start[-1])
-        # The learning rate anneals to 0 within every phase (or stays constant).
-        self.learning_rate = optax.join_schedules(
-            [optax.linear_schedule(config.learning_rate, 0.0, int(n)) if config.anneal_lr
-             else optax.constant_schedule(config.learning_rate) for n in shares],
-            [int(b) for b in self.phase_start[1:-1]])
+        # The learning rate anneals to 0 within every phase (or stays constant), the
+        # entropy weight from ent_coef to ent_coef_end.
+        self.learning_rate = self._per_phase(
+            config.learning_rate, 0.0 if config.anneal_lr else config.learning_rate)
+        self.ent_coef = self._per_phase(config.ent_coef, config.ent_coef_end)
         # Actor and critics clip their gradient norms apart; Adam's state restarts
         # with every phase.
         self.optimizer = optax.chain(
             optax.clip_by_global_norm(config.max_grad_norm),
             optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate, eps=1e-5))
+
+    def _per_phase(self, start: float, end: float) -> optax.Schedule:
+        """A schedule over updates that goes linearly from ``start`` to ``end`` within
+        every phase."""
+        return optax.join_schedules(
+            [optax.linear_schedule(start, end, int(n)) for n in self.phase_updates],
+            [int(b) for b in self.phase_start[1:-1]])
 
     # ------------------------------------------------------------------ init
     def init_params(self, key: jax.Array) -> dict:
@@ -295,7 +302,8 @@ class Trainer:
         phase = self.phase_of(state.update)
         batch, penalty, value_norm = self.lagrangian_targets(state, slack, rollout, phase)
         lr = jnp.asarray(self.learning_rate(state.update), jnp.float32)
-        state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr)
+        ent_coef = jnp.asarray(self.ent_coef(state.update), jnp.float32)
+        state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr, ent_coef)
         excluded = 0.0 if rollout.allowed is None else 1.0 - rollout.allowed.mean()
         metrics = {"phase": phase, "lr": lr,
                    "penalty": penalty.mean(), "violation_rate": (penalty > 0).mean(),
@@ -362,16 +370,18 @@ class Trainer:
         return batch, penalty, state.value_norm.update(target, pick)
 
     def ppo_epochs(self, state: TrainState, batch: Batch, phase: jax.Array,
-                   value_norm: ValueNorm, lr: jax.Array) -> tuple[TrainState, dict]:
+                   value_norm: ValueNorm, lr: jax.Array, ent_coef: jax.Array
+                   ) -> tuple[TrainState, dict]:
         """``update_epochs`` passes of minibatch steps over ``batch`` at learning rate
-        ``lr``: the clipped surrogate of the actor and the phase critic's normalised
-        value loss."""
+        ``lr`` and entropy weight ``ent_coef``: the clipped surrogate of the actor and
+        the phase critic's normalised value loss."""
         cfg = self.config
         scale = value_norm.stats()
 
         def minibatch(carry, mb: Batch):
             params, actor_opt, critic_opt = carry
-            grads, info = jax.grad(self._loss, has_aux=True)(params, mb, phase, scale)
+            grads, info = jax.grad(self._loss, has_aux=True)(params, mb, phase, scale,
+                                                              ent_coef)
             a_up, actor_opt = self.optimizer.update(grads["actor"], actor_opt)
             c_up, critic_opt = self.optimizer.update(self._trainable(grads["critics"], phase),
                                                      critic_opt)
@@ -396,7 +406,8 @@ class Trainer:
         return state, losses
 
     def _loss(self, params: dict, mb: Batch, phase: jax.Array,
-              scale: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, dict]:
+              scale: tuple[jax.Array, jax.Array], ent_coef: jax.Array
+              ) -> tuple[jax.Array, dict]:
         cfg = self.config
         pi = self.restricted(params["actor"], mb.obs, mb.allowed)
         log_ratio = pi.log_prob(mb.action) - mb.log_prob
@@ -416,7 +427,7 @@ class Trainer:
             adv_loss = jnp.mean((adv - mb.q_target / (std * ADVANTAGE_UNIT)) ** 2, axis=0) @ heads
         vl = 0.5 * weighted_mean((value - (mb.target - mean[phase]) / std[phase]) ** 2,
                                  mb.weight) + 0.5 * adv_loss
-        total = pg - cfg.ent_coef * ent + cfg.vf_coef * vl
+        total = pg - ent_coef * ent + cfg.vf_coef * vl
         kl = weighted_mean((jnp.exp(log_ratio) - 1) - log_ratio, mb.weight)
         return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent, "approx_kl": kl}
 
