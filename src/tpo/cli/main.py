@@ -103,6 +103,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from tpo.experiments.runs import create_run, train_run
 
     given = {**read_fields(args, RunSpec, skip={"config"}), **read_fields(args, TPOConfig)}
+    replaced = None
     if args.resume:
         if given or args.config or args.out:
             raise UsageError("--resume continues a run with its own config.toml; "
@@ -122,7 +123,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 raise UsageError(f"cannot read --config {args.config}: {err}") from None
         spec = RunSpec.from_settings({**settings, **given})
         spec.check()  # map, DAG, slack, env and budget, before creating anything
-        run_dir = create_run(args.out, spec, force=args.force)
+        run_dir, replaced = create_run(args.out, spec, force=args.force)
 
     bar = tqdm(total=spec.steps, unit="step", unit_scale=True, disable=args.quiet)
 
@@ -132,7 +133,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                         ret="/".join(f"{r:.1f}" for r in metrics["episode_return"][-1]))
 
     try:
-        result = train_run(run_dir, episodes=args.episodes, progress=progress)
+        result = train_run(run_dir, episodes=args.episodes, progress=progress,
+                           replaced=replaced)
     finally:
         bar.close()
     print_result(result)

@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,6 +30,7 @@ import numpy as np
 
 from tpo.algo import TPO
 from tpo.atomic import write_atomic
+from tpo.errors import TPOError
 from tpo.experiments.runspec import RunError, RunSpec
 
 METRICS = ("episode_return", "episode_length", "penalty", "violation_rate", "excluded",
@@ -93,29 +96,99 @@ def checkpoints(run_dir: Path) -> list[Path]:
     return sorted(found, key=lambda p: int(p.name.split("-")[1]))
 
 
-def create_run(out: str | Path, spec: RunSpec, force: bool = False) -> Path:
-    """Make the run directory with its ``config.toml``; an existing one is kept
-    unless ``force``."""
+RUN_ENTRIES = ("config.toml", "metrics.csv", "tb", "checkpoints", "model", "eval.json")
+
+
+def check_replaceable(out: Path) -> None:
+    """Raise :class:`RunError` unless ``--force`` may replace ``out``: a tpo run
+    directory (its ``config.toml`` a run's, nothing in it that tpo does not write)
+    that is not the working directory or one of its parents, the home directory
+    or a filesystem root."""
+    where = out.resolve()
+    if where == Path(where.anchor) or where == Path.home().resolve() \
+            or Path.cwd().resolve().is_relative_to(where):
+        raise RunError(f"--force will not replace {out}: it is the working directory or "
+                       "one of its parents, the home directory or a filesystem root")
+    if out.is_symlink() or not out.is_dir():
+        raise RunError(f"--force will not replace {out}: not a run directory")
+    temporaries = tuple(f".{name}." for name in RUN_ENTRIES)  # of tpo.atomic's writers
+    foreign = sorted(p.name for p in out.iterdir()
+                     if p.name not in RUN_ENTRIES and not p.name.startswith(temporaries))
+    if foreign:
+        raise RunError(f"--force will not replace {out}: it holds {foreign[0]!r}, which "
+                       "tpo does not write in a run")
+    try:
+        RunSpec.from_toml(out / "config.toml")
+    except (OSError, TPOError) as err:
+        raise RunError(f"--force will not replace {out}: it is not a tpo run ({err})"
+                       ) from None
+
+
+class Replaced:
+    """A run that ``--force`` replaces, kept aside beside the new one until the new
+    run has started (:meth:`discard`) or failed to (:meth:`restore`)."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.run_dir = run_dir
+        self.holder = Path(tempfile.mkdtemp(prefix=f".{run_dir.name}.replaced.",
+                                            dir=run_dir.parent))
+        os.replace(run_dir, self.holder / run_dir.name)
+
+    def discard(self) -> None:
+        shutil.rmtree(self.holder)
+
+    def restore(self) -> None:
+        shutil.rmtree(self.run_dir, ignore_errors=True)
+        os.replace(self.holder / self.run_dir.name, self.run_dir)
+        self.holder.rmdir()
+
+
+def create_run(out: str | Path, spec: RunSpec, force: bool = False
+               ) -> tuple[Path, Replaced | None]:
+    """Make the run directory with its ``config.toml``. An existing, non-empty
+    ``out`` is kept unless ``force``, and then only a tpo run is replaced
+    (:func:`check_replaceable`): it is moved aside and returned, for
+    :func:`train_run` to remove once the new run has started."""
     out = Path(out)
-    if out.exists() and any(out.iterdir()) and not force:
-        raise RunError(f"run directory {out} exists; pass --force to replace it "
-                       "or --resume to continue it")
-    if out.exists() and force:
-        shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "config.toml", spec.to_toml())
-    return out
+    if out.exists() and not out.is_dir():
+        raise RunError(f"--out {out} is a file, not a run directory")
+    replaced = None
+    if out.exists() and any(out.iterdir()):
+        if not force:
+            raise RunError(f"run directory {out} exists; pass --force to replace it "
+                           "or --resume to continue it")
+        check_replaceable(out)
+        replaced = Replaced(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomic(out / "config.toml", spec.to_toml())
+    except BaseException:
+        if replaced is not None:
+            replaced.restore()
+        raise
+    return out, replaced
 
 
 Progress = Callable[[TPO, dict[str, np.ndarray], int], None]
 
 
 def train_run(run_dir: str | Path, episodes: int = 100, progress: Progress | None = None,
-              chunk_updates: int = 16) -> dict[str, Any]:
+              chunk_updates: int = 16, replaced: Replaced | None = None) -> dict[str, Any]:
     """Train the run in ``run_dir`` to its end, or resume it from its last checkpoint,
     checkpointing about :data:`CHECKPOINTS` times; then save the model and write
-    ``eval.json``."""
+    ``eval.json``. A ``replaced`` run is removed once the first chunk has trained,
+    and restored if anything fails before."""
     run_dir = Path(run_dir)
+    try:
+        return _train(run_dir, episodes, progress, chunk_updates, replaced)
+    except BaseException:
+        if replaced is not None and replaced.holder.exists():
+            replaced.restore()
+        raise
+
+
+def _train(run_dir: Path, episodes: int, progress: Progress | None, chunk_updates: int,
+           replaced: Replaced | None) -> dict[str, Any]:
     spec = RunSpec.from_toml(run_dir / "config.toml")
     saved = checkpoints(run_dir)
     model = TPO.load(saved[-1]) if saved else spec.model()
@@ -128,6 +201,8 @@ def train_run(run_dir: str | Path, episodes: int = 100, progress: Progress | Non
         every = chunk_updates * max(1, math.ceil(total / CHECKPOINTS / chunk_updates))
         if done % every == 0 or done == total:
             model.save(run_dir / "checkpoints" / f"update-{done:06d}", overwrite=True)
+        if replaced is not None and replaced.holder.exists():
+            replaced.discard()  # the new run has started
         if progress is not None:
             progress(model, metrics, done)
 
