@@ -59,6 +59,9 @@ from tpo.algo.phases import Acting, Problem, reward_ranges
 from tpo.graph import ObjectiveGraph
 
 
+MAX_UPDATES = 2**31 - 1  # the update counter is an int32
+
+
 @struct.dataclass
 class TrainState:
     """Everything a run carries from update to update (a pytree)."""
@@ -131,11 +134,12 @@ class Trainer:
                               f"{n_phases} phase(s)")
         fractions = np.asarray(config.phase_fractions or [1.0] * n_phases, float)
         per_update = config.batch_size
+        most = per_update * (MAX_UPDATES - 1)
         if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) \
-                or total_timesteps < per_update * n_phases:
-            raise ConfigError(f"total_timesteps must be an integer >= {per_update * n_phases} "
-                              f"(one update of {per_update} steps per phase), "
-                              f"got {total_timesteps!r}")
+                or not per_update * n_phases <= total_timesteps <= most:
+            raise ConfigError(f"total_timesteps must be an integer from {per_update * n_phases} "
+                              f"(one update of {per_update} steps per phase) to {most:.3g} "
+                              f"(the update counter is int32), got {total_timesteps!r}")
         shares = np.maximum(1, np.floor(total_timesteps / per_update * fractions
                                         / fractions.sum())).astype(np.int32)
         self.phase_updates = shares

@@ -34,6 +34,17 @@ def parse_slack(text: str, option: str = "--slack") -> list[float]:
                          ) from None
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def check_new_file(path: str, force: bool) -> Path:
     """Refuse to overwrite a user's file unless ``--force``."""
     p = Path(path)
@@ -269,7 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
     p.add_argument("--resume", metavar="RUN_DIR",
                    help="continue a run from its last checkpoint (e.g. after a kill)")
-    p.add_argument("--episodes", type=int, default=100, help="Monte Carlo episodes")
+    p.add_argument("--episodes", type=positive_int, default=100, help="Monte Carlo episodes")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_fields(p, RunSpec, "problem and budget", skip={"config"})
     add_fields(p, TPOConfig, "hyperparameters (TPOConfig)")
@@ -294,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("eval", help="re-evaluate a saved run directory")
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
-    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--episodes", type=positive_int, default=100, help="Monte Carlo episodes")
     p.set_defaults(handler=cmd_eval)
     return parser
 

@@ -65,6 +65,8 @@ class RunSpec:
         for name in ("seed", "steps"):
             if isinstance(run[name], bool) or not isinstance(run[name], int):
                 raise RunError(f"{name} must be an integer, got {run[name]!r}")
+        if not 0 <= run["seed"] < 2**32:
+            raise RunError(f"seed must be an integer from 0 to 2**32 - 1, got {run['seed']}")
         objectives = run["objectives"]
         if isinstance(objectives, str):
             objectives = [o.strip() for o in objectives.split(",") if o.strip()]
