@@ -58,7 +58,6 @@ from tpo.algo.networks import (
 from tpo.algo.phases import Acting, Problem, reward_ranges
 from tpo.graph import ObjectiveGraph
 
-
 MAX_UPDATES = 2**31 - 1  # the update counter is an int32
 
 
