@@ -70,4 +70,35 @@ def read_model(path: str | Path) -> tuple[dict[str, Any], bytes]:
     if found != FORMAT:
         raise TPOError(f"{path}: unknown model format {found!r} "
                        f"(this version reads {FORMAT})")
+    try:
+        check_meta(meta)
+    except TPOError as err:
+        raise TPOError(f"{path}/model.json: {err}") from None
     return meta, blob
+
+
+#: ``model.json``'s keys and their types (the env spec is checked by tpo.envs).
+META_KEYS: dict[str, type] = {
+    "format": int, "config": dict, "dag": str, "slack": list, "env": dict, "seed": int,
+    "num_timesteps": int, "total_timesteps": int, "updates_done": int, "num_updates": int}
+
+
+def check_meta(meta: dict[str, Any]) -> None:
+    """Raise :class:`TPOError` naming the first missing or unknown key, or value of
+    the wrong type, of a saved model's ``model.json``."""
+    from tpo.envs.spec import check_spec
+
+    unknown = sorted(set(meta) - set(META_KEYS))
+    if unknown:
+        raise TPOError(f"unknown key {unknown[0]!r}")
+    for key, kind in META_KEYS.items():
+        if key not in meta:
+            raise TPOError(f"lacks {key!r}")
+        value = meta[key]
+        if isinstance(value, bool) or not isinstance(value, kind) or (
+                kind is int and value < 0):
+            wanted = "a non-negative integer" if kind is int else f"a {kind.__name__}"
+            raise TPOError(f"{key} must be {wanted}, got {value!r:.60}")
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in meta["slack"]):
+        raise TPOError("slack must be a list of numbers")
+    check_spec(meta["env"])

@@ -201,12 +201,17 @@ class TPO:
         return save_model(path, meta, state, overwrite)
 
     @classmethod
-    def load(cls, path: str | Path) -> TPO:
+    def load(cls, path: str | Path, trust_env_module: str | None = None) -> TPO:
         """A model saved by :meth:`save`: it acts, and :meth:`resume` finishes its
-        training program if it was saved mid-way."""
+        training program if it was saved mid-way.
+
+        Loading runs no code that the files name: ``model.json`` is checked against
+        its schema, and a Gymnasium env is rebuilt only from an id already
+        registered, one of tpo's own dependencies (MO-Gymnasium), or the package
+        named by ``trust_env_module``."""
         meta, blob = read_model(path)
         config = TPOConfig.from_dict(meta["config"])
-        env = from_spec(meta["env"], num_envs=config.num_envs)
+        env = from_spec(meta["env"], num_envs=config.num_envs, trust_module=trust_env_module)
         model = cls(env, meta["dag"], meta["slack"], config, meta["seed"])
         model._fresh_env = model.host
         model.trainer = Trainer(model.env, model.graph, model.config, meta["total_timesteps"])

@@ -145,7 +145,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     try:
         result = train_run(run_dir, episodes=args.episodes, progress=progress,
-                           replaced=replaced)
+                           replaced=replaced, trust_module=args.trust_module)
     finally:
         bar.close()
     print_result(result)
@@ -180,7 +180,7 @@ def print_result(result: dict) -> None:
 def cmd_eval(args: argparse.Namespace) -> int:
     from tpo.algo import TPO
 
-    model = TPO.load(Path(args.run_dir) / "model")
+    model = TPO.load(Path(args.run_dir) / "model", trust_env_module=args.trust_module)
     print(json.dumps(model.evaluate(episodes=args.episodes), indent=2))
     return 0
 
@@ -281,6 +281,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", metavar="RUN_DIR",
                    help="continue a run from its last checkpoint (e.g. after a kill)")
     p.add_argument("--episodes", type=positive_int, default=100, help="Monte Carlo episodes")
+    p.add_argument("--trust-module", metavar="PACKAGE",
+                   help="the package of a Gymnasium env that a saved model names, to "
+                        "import on load (tpo imports no module named in a file otherwise)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_fields(p, RunSpec, "problem and budget", skip={"config"})
     add_fields(p, TPOConfig, "hyperparameters (TPOConfig)")
@@ -306,6 +309,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("eval", help="re-evaluate a saved run directory")
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
     p.add_argument("--episodes", type=positive_int, default=100, help="Monte Carlo episodes")
+    p.add_argument("--trust-module", metavar="PACKAGE",
+                   help="the package of a Gymnasium env that a saved model names, to "
+                        "import on load (tpo imports no module named in a file otherwise)")
     p.set_defaults(handler=cmd_eval)
     return parser
 

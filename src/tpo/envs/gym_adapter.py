@@ -29,21 +29,41 @@ class EnvError(TPOError):
     """A Gymnasium environment TPO cannot train on."""
 
 
-def env_factory(env: str | EnvFactory, **kwargs: Any) -> EnvFactory:
+#: Packages that tpo itself depends on: their envs load without being trusted.
+KNOWN_PACKAGES = ("gym", "gymnasium", "mo-gymnasium", "mo_gymnasium")
+
+
+def env_factory(env: str | EnvFactory, *, trust_module: str | bool = True,
+                **kwargs: Any) -> EnvFactory:
     """A factory of the env named ``"package:EnvId"`` (the package is imported to
     register its ids: ``mo-gymnasium:deep-sea-treasure-v0``; ``gym:CartPole-v1``
-    for Gymnasium's own), or ``env`` itself when it is already a factory."""
+    for Gymnasium's own), or ``env`` itself when it is already a factory.
+
+    ``trust_module`` says which package may be imported: ``True`` (the name was
+    given by the caller), ``False`` (it was read from a file: only tpo's own
+    dependencies, :data:`KNOWN_PACKAGES`, or an id already registered), or the
+    one module name the caller trusts besides those.
+    """
     if callable(env):
         return env
     package, sep, env_id = env.partition(":")
-    if not sep or not env_id:
+    if not sep or not env_id or ":" in env_id:
         raise EnvError(f"bad env '{env}': write PACKAGE:ENV_ID, e.g. "
                        "mo-gymnasium:deep-sea-treasure-v0 or gym:CartPole-v1")
+    module = package.replace("-", "_")
+    trusted = trust_module is True or package in KNOWN_PACKAGES or (
+        isinstance(trust_module, str) and trust_module.replace("-", "_") == module)
     if package not in ("gym", "gymnasium"):
-        try:
-            importlib.import_module(package.replace("-", "_"))
-        except ImportError as err:
-            raise EnvError(f"cannot import '{package}' for env '{env}': {err}") from None
+        if trusted:
+            try:
+                importlib.import_module(module)
+            except ImportError as err:
+                raise EnvError(f"cannot import '{package}' for env '{env}': {err}") from None
+        elif env_id not in gym.registry:
+            raise EnvError(f"env '{env}' is not registered and tpo does not import "
+                           f"'{package}', a module named in a file; import it yourself "
+                           f"or trust it: trust_env_module='{package}' "
+                           f"(tpo: --trust-module {package})")
     try:
         gym.spec(env_id)
     except gym.error.Error as err:

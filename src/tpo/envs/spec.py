@@ -16,7 +16,7 @@ import gymnasium as gym
 
 from tpo.envs.continuous import ContinuousNav
 from tpo.envs.grid import GridNav
-from tpo.envs.gym_adapter import EnvFactory, HostEnv, host_env
+from tpo.envs.gym_adapter import EnvFactory, HostEnv, env_factory, host_env
 from tpo.envs.maps import load_map, parse_map
 from tpo.errors import MapError, TPOError
 
@@ -47,13 +47,57 @@ def make_env(env: Env | str | Path | gym.Env | gym.vector.VectorEnv | EnvFactory
     return GridNav(navmap, random_start=True)
 
 
-def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int = 1) -> Env:
-    """The env of ``spec`` (an env's ``to_spec()``); ``evaluation`` drops a grid's
-    random starts; a Gymnasium env gets ``num_envs`` copies."""
+Number = int | float
+#: The keys of every env kind's spec and their types (bool is not an int here).
+SPEC_KEYS: dict[str, dict[str, type | tuple[type, ...]]] = {
+    "grid": {"map": str, "slip": Number, "observation": str, "max_steps": int,
+             "random_start": bool},
+    "continuous": {"map": str, "action": str, "speed": Number, "noise": Number,
+                   "n_beams": int, "max_range": Number, "max_steps": int},
+    "gym": {"id": str, "objectives": list},
+}
+
+
+def check_spec(spec: Any) -> None:
+    """Raise :class:`TPOError` naming the first thing wrong with an env spec read from
+    a file: its kind, a missing or unknown key, a value of the wrong type."""
+    if not isinstance(spec, dict):
+        raise TPOError(f"env spec must be a table, got {type(spec).__name__}")
+    kind = spec.get("kind")
+    if kind not in SPEC_KEYS:
+        raise TPOError(f"unknown env kind {kind!r} (known: {', '.join(SPEC_KEYS)})")
+    keys = SPEC_KEYS[kind]
+    unknown = sorted(set(spec) - set(keys) - {"kind"})
+    if unknown:
+        raise TPOError(f"{kind} env spec has unknown key {unknown[0]!r}")
+    for key, kinds in keys.items():
+        if key not in spec:
+            raise TPOError(f"{kind} env spec lacks {key!r}")
+        value = spec[key]
+        if (isinstance(value, bool) and kinds is not bool) or not isinstance(value, kinds):
+            raise TPOError(f"{kind} env spec: {key} must be {_type_name(kinds)}, got "
+                           f"{value!r:.60}")
+    if kind == "gym" and not all(isinstance(o, str) for o in spec["objectives"]):
+        raise TPOError("gym env spec: objectives must be a list of names")
+
+
+def _type_name(kinds: type | Any) -> str:
+    return {str: "a string", bool: "true or false", int: "an integer", list: "a list",
+            Number: "a number"}.get(kinds, str(kinds))
+
+
+def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int = 1,
+              trust_module: str | None = None) -> Env:
+    """The env of ``spec`` (an env's ``to_spec()``, checked by :func:`check_spec`);
+    ``evaluation`` drops a grid's random starts; a Gymnasium env gets ``num_envs``
+    copies and is rebuilt without importing any module the spec names, unless it
+    is ``trust_module`` (:func:`tpo.envs.gym_adapter.env_factory`)."""
+    check_spec(spec)
     spec = dict(spec)
     kind = spec.pop("kind")
     if kind == "gym":
-        return host_env(spec["id"], spec["objectives"], num_envs)
+        return HostEnv(env_factory(spec["id"], trust_module=trust_module or False),
+                       spec["objectives"], num_envs, env_id=spec["id"])
     navmap = parse_map(spec.pop("map"))
     if kind == "grid":
         if evaluation:
@@ -61,4 +105,3 @@ def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int =
         return GridNav(navmap, **spec)
     if kind == "continuous":
         return ContinuousNav(navmap, **spec)
-    raise TPOError(f"unknown environment kind '{kind}'")

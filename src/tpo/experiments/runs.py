@@ -173,14 +173,15 @@ Progress = Callable[[TPO, dict[str, np.ndarray], int], None]
 
 
 def train_run(run_dir: str | Path, episodes: int = 100, progress: Progress | None = None,
-              chunk_updates: int = 16, replaced: Replaced | None = None) -> dict[str, Any]:
+              chunk_updates: int = 16, replaced: Replaced | None = None,
+              trust_module: str | None = None) -> dict[str, Any]:
     """Train the run in ``run_dir`` to its end, or resume it from its last checkpoint,
     checkpointing about :data:`CHECKPOINTS` times; then save the model and write
     ``eval.json``. A ``replaced`` run is removed once the first chunk has trained,
-    and restored if anything fails before."""
+    and restored if anything fails before. ``trust_module``: see :meth:`TPO.load`."""
     run_dir = Path(run_dir)
     try:
-        return _train(run_dir, episodes, progress, chunk_updates, replaced)
+        return _train(run_dir, episodes, progress, chunk_updates, replaced, trust_module)
     except BaseException:
         if replaced is not None and replaced.holder.exists():
             replaced.restore()
@@ -188,10 +189,10 @@ def train_run(run_dir: str | Path, episodes: int = 100, progress: Progress | Non
 
 
 def _train(run_dir: Path, episodes: int, progress: Progress | None, chunk_updates: int,
-           replaced: Replaced | None) -> dict[str, Any]:
+           replaced: Replaced | None, trust_module: str | None) -> dict[str, Any]:
     spec = RunSpec.from_toml(run_dir / "config.toml")
     saved = checkpoints(run_dir)
-    model = TPO.load(saved[-1]) if saved else spec.model()
+    model = TPO.load(saved[-1], trust_module) if saved else spec.model()
     log = MetricsLog(run_dir, model.env.objectives, model.phases, spec.config.batch_size,
                      int(model.state.update) if saved else 0)
 
