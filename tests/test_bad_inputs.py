@@ -83,7 +83,7 @@ CASES = [
     (["train", "--map", "small", "--episodes", "0", "--out", "{tmp}/r"],
      "argument --episodes: must be at least 1, got 0"),
     (["eval", "{tmp}", "--episodes", "-3"], "argument --episodes: must be at least 1"),
-    (["train", "--map", "small", "--out", "{tmp}/lr.toml"], "is a file, not a run directory"),
+    (["train", "--map", "small", "--out", "{tmp}/lr.toml"], "is a file, not a directory"),
     (["train", "--map", "small"], "give --out RUN_DIR (or --resume RUN_DIR)"),
     (["train", "--resume", "{tmp}"], "is not a run directory (no config.toml)"),
     (["train", "--resume", "{tmp}", "--map", "home"], "drop --out, --config and the run"),

@@ -68,7 +68,7 @@ def test_force_over_a_file_is_one_line(tmp_path, capsys):
     target = tmp_path / "file"
     target.write_text("mine")
     assert main(["train", *TINY, "--out", str(target), "--force"]) == 2
-    assert "is a file, not a run directory" in capsys.readouterr().err
+    assert "is a file, not a directory" in capsys.readouterr().err
     assert target.read_text() == "mine"
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -20,6 +21,7 @@ from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
 from tpo.errors import TPOError
 from tpo.experiments.runspec import RunSpec
 from tpo.graph import ObjectiveGraph
+from tpo.locking import exclusive
 from tpo.tabular import LARSolution, solve_lar
 
 EXIT_USAGE = 2
@@ -109,12 +111,9 @@ def print_solution(name: str, sol: LARSolution, summary: dict) -> None:
 def cmd_train(args: argparse.Namespace) -> int:
     import tomllib
 
-    from tqdm import tqdm
-
-    from tpo.experiments.runs import create_run, train_run
+    from tpo.experiments.runs import create_run
 
     given = {**read_fields(args, RunSpec, skip={"config"}), **read_fields(args, TPOConfig)}
-    replaced = None
     if args.resume:
         if given or args.config or args.out:
             raise UsageError("--resume continues a run with its own config.toml; "
@@ -122,19 +121,28 @@ def cmd_train(args: argparse.Namespace) -> int:
         run_dir = Path(args.resume)
         if not (run_dir / "config.toml").exists():
             raise UsageError(f"{run_dir} is not a run directory (no config.toml)")
-        spec = RunSpec.from_toml(run_dir / "config.toml")
-    else:
-        if not args.out:
-            raise UsageError("give --out RUN_DIR (or --resume RUN_DIR)")
-        settings: dict = {}
-        if args.config:
-            try:
-                settings = tomllib.loads(Path(args.config).read_text())
-            except (OSError, tomllib.TOMLDecodeError) as err:
-                raise UsageError(f"cannot read --config {args.config}: {err}") from None
-        spec = RunSpec.from_settings({**settings, **given})
-        spec.check()  # map, DAG, slack, env and budget, before creating anything
-        run_dir, replaced = create_run(args.out, spec, force=args.force)
+        with exclusive(run_dir):
+            return _train(args, run_dir, RunSpec.from_toml(run_dir / "config.toml"), None)
+    if not args.out:
+        raise UsageError("give --out RUN_DIR (or --resume RUN_DIR)")
+    settings: dict = {}
+    if args.config:
+        try:
+            settings = tomllib.loads(Path(args.config).read_text())
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise UsageError(f"cannot read --config {args.config}: {err}") from None
+    spec = RunSpec.from_settings({**settings, **given})
+    spec.check()  # map, DAG, slack, env and budget, before creating anything
+    with exclusive(args.out, create=True) as out:
+        run_dir, replaced = create_run(out, spec, force=args.force)
+        return _train(args, run_dir, spec, replaced)
+
+
+def _train(args: argparse.Namespace, run_dir: Path, spec: RunSpec, replaced) -> int:
+    """Train ``run_dir`` to its end with a progress bar, then print the verdict."""
+    from tqdm import tqdm
+
+    from tpo.experiments.runs import train_run
 
     bar = tqdm(total=spec.steps, unit="step", unit_scale=True, disable=args.quiet)
 
@@ -180,7 +188,13 @@ def print_result(result: dict) -> None:
 def cmd_eval(args: argparse.Namespace) -> int:
     from tpo.algo import TPO
 
-    model = TPO.load(Path(args.run_dir) / "model", trust_env_module=args.trust_module)
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "model").is_dir() or not os.access(run_dir, os.W_OK):
+        # not a run (load says why), or read-only: no tpo process can change it
+        model = TPO.load(run_dir / "model", trust_env_module=args.trust_module)
+    else:
+        with exclusive(run_dir):
+            model = TPO.load(run_dir / "model", trust_env_module=args.trust_module)
     print(json.dumps(model.evaluate(episodes=args.episodes), indent=2))
     return 0
 
@@ -220,19 +234,20 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if args.completion:
         changes["completion"] = True
     settings = replace(settings, **changes)
-    weights = {p.name: len(xs) * len(settings.seeds) * settings.steps
-               for p, xs in settings.jobs()}
-    bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True, disable=args.quiet,
-               desc="reproduce")
-    t0 = time.monotonic()
+    with exclusive(args.out, create=True) as out:
+        weights = {p.name: len(xs) * len(settings.seeds) * settings.steps
+                   for p, xs in settings.jobs()}
+        bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True,
+                   disable=args.quiet, desc="reproduce")
+        t0 = time.monotonic()
 
-    def progress(fractions: dict[str, float]) -> None:
-        bar.update(sum(weights[n] * f for n, f in fractions.items()) - bar.n)
+        def progress(fractions: dict[str, float]) -> None:
+            bar.update(sum(weights[n] * f for n, f in fractions.items()) - bar.n)
 
-    try:
-        result = reproduce(args.out, settings, progress)
-    finally:
-        bar.close()
+        try:
+            result = reproduce(out, settings, progress)
+        finally:
+            bar.close()
     print(f"{result.summary()}; {time.monotonic() - t0:.0f} s in all")
     return 0
 

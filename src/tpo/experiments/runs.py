@@ -32,6 +32,7 @@ from tpo.algo import TPO
 from tpo.atomic import write_atomic
 from tpo.errors import TPOError
 from tpo.experiments.runspec import RunError, RunSpec
+from tpo.locking import LOCK_FILE
 
 METRICS = ("episode_return", "episode_length", "penalty", "violation_rate", "excluded",
            "policy_loss",
@@ -112,8 +113,8 @@ def check_replaceable(out: Path) -> None:
     if out.is_symlink() or not out.is_dir():
         raise RunError(f"--force will not replace {out}: not a run directory")
     temporaries = tuple(f".{name}." for name in RUN_ENTRIES)  # of tpo.atomic's writers
-    foreign = sorted(p.name for p in out.iterdir()
-                     if p.name not in RUN_ENTRIES and not p.name.startswith(temporaries))
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in (*RUN_ENTRIES, LOCK_FILE)
+                     and not p.name.startswith(temporaries))
     if foreign:
         raise RunError(f"--force will not replace {out}: it holds {foreign[0]!r}, which "
                        "tpo does not write in a run")
@@ -125,35 +126,45 @@ def check_replaceable(out: Path) -> None:
 
 
 class Replaced:
-    """A run that ``--force`` replaces, kept aside beside the new one until the new
-    run has started (:meth:`discard`) or failed to (:meth:`restore`)."""
+    """A run that ``--force`` replaces: its files, kept aside beside the run directory
+    (which stays, with its lock) until the new run has started (:meth:`discard`) or
+    failed to (:meth:`restore`)."""
 
     def __init__(self, run_dir: Path) -> None:
         self.run_dir = run_dir
         self.holder = Path(tempfile.mkdtemp(prefix=f".{run_dir.name}.replaced.",
                                             dir=run_dir.parent))
-        os.replace(run_dir, self.holder / run_dir.name)
+        for entry in _entries(run_dir):
+            os.replace(entry, self.holder / entry.name)
 
     def discard(self) -> None:
         shutil.rmtree(self.holder)
 
     def restore(self) -> None:
-        shutil.rmtree(self.run_dir, ignore_errors=True)
-        os.replace(self.holder / self.run_dir.name, self.run_dir)
+        for entry in _entries(self.run_dir):
+            shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
+        for entry in self.holder.iterdir():
+            os.replace(entry, self.run_dir / entry.name)
         self.holder.rmdir()
+
+
+def _entries(directory: Path) -> list[Path]:
+    """Everything in ``directory`` but its lock."""
+    return [p for p in directory.iterdir() if p.name != LOCK_FILE]
 
 
 def create_run(out: str | Path, spec: RunSpec, force: bool = False
                ) -> tuple[Path, Replaced | None]:
-    """Make the run directory with its ``config.toml``. An existing, non-empty
-    ``out`` is kept unless ``force``, and then only a tpo run is replaced
-    (:func:`check_replaceable`): it is moved aside and returned, for
+    """Make the run directory with its ``config.toml``, under the directory's lock
+    (:func:`tpo.locking.exclusive`, which the caller holds). An existing run
+    directory is kept unless ``force``, and then only a tpo run is replaced
+    (:func:`check_replaceable`): its files are moved aside and returned, for
     :func:`train_run` to remove once the new run has started."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise RunError(f"--out {out} is a file, not a run directory")
     replaced = None
-    if out.exists() and any(out.iterdir()):
+    if out.exists() and _entries(out):
         if not force:
             raise RunError(f"run directory {out} exists; pass --force to replace it "
                            "or --resume to continue it")

@@ -1,0 +1,61 @@
+"""One writer per directory: an advisory lock that tpo's commands hold on a run,
+sweep or reproduction directory for as long as they work in it.
+
+The lock is ``fcntl.flock`` on ``DIR/.tpo.lock``, which also records the holder's
+pid. The kernel drops it when the holder exits, however it exits, so a killed
+run never leaves a stale lock behind.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from tpo.errors import TPOError
+
+LOCK_FILE = ".tpo.lock"
+
+
+class LockError(TPOError):
+    """Another process works in the directory."""
+
+
+@contextmanager
+def exclusive(directory: str | Path, create: bool = False) -> Iterator[Path]:
+    """Hold ``directory``'s lock for the ``with`` block, or raise :class:`LockError`
+    naming the holder's pid at once. ``create`` makes the directory (and its
+    parents) if it is missing, and removes it again if the block fails while it
+    holds nothing but the lock."""
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise LockError(f"{directory} is a file, not a directory")
+    made = False
+    if create and not directory.exists():
+        try:
+            directory.mkdir(parents=True)
+            made = True
+        except FileExistsError:  # another process made it first: its lock decides
+            pass
+    path = directory / LOCK_FILE
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+            raise LockError(f"{directory} is in use by another tpo process (pid {holder}); "
+                            "wait for it to finish or stop it") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        try:
+            yield directory
+        except BaseException:
+            if made and [p.name for p in directory.iterdir()] == [LOCK_FILE]:
+                path.unlink()
+                directory.rmdir()
+            raise
+    finally:
+        os.close(fd)
