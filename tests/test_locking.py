@@ -72,8 +72,8 @@ def test_two_trainings_on_one_out_one_wins_and_keeps_its_own_settings(tmp_path):
     results = [(p.wait(timeout=300), p.stderr.read()) for p in procs]
     codes = sorted(code for code, _ in results)
     assert codes == [0, 2], results
-    winner = [seed for seed, (code, _) in zip((1, 2), results, strict=True) if code == 0][0]
-    loser_err = [err for code, err in results if code == 2][0]
+    winner = next(seed for seed, (code, _) in zip((1, 2), results, strict=True) if code == 0)
+    loser_err = next(err for code, err in results if code == 2)
     assert "is in use by another tpo process" in loser_err or "exists; pass --force" \
         in loser_err, loser_err
     assert f"seed = {winner}\n" in (out / "config.toml").read_text()
