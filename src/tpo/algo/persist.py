@@ -62,9 +62,9 @@ def read_model(path: str | Path) -> tuple[dict[str, Any], bytes]:
     """``model.json``'s contents and the state's bytes of a saved model."""
     path = Path(path)
     try:
-        meta = json.loads((path / "model.json").read_text())
+        meta = json.loads((path / "model.json").read_text(encoding="utf-8"))
         blob = (path / "state.msgpack").read_bytes()
-    except (OSError, json.JSONDecodeError) as err:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise TPOError(f"{path} is not a saved tpo model: {err}") from None
     found = meta.get("format") if isinstance(meta, dict) else None
     if found != FORMAT:

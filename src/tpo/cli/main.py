@@ -47,11 +47,20 @@ def positive_int(text: str) -> int:
     return value
 
 
-def check_new_file(path: str, force: bool) -> Path:
-    """Refuse to overwrite a user's file unless ``--force``."""
+def check_plot_file(path: str, force: bool) -> Path:
+    """A figure file to write: a format matplotlib writes, and not a user's file
+    unless ``--force``."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
     p = Path(path)
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if p.suffix[1:].lower() not in formats:
+        raise UsageError(f"--plot {p}: give a file ending in one of "
+                         f"{', '.join('.' + f for f in sorted(formats))}")
     if p.exists() and not force:
         raise UsageError(f"{p} exists; pass --force to overwrite it")
+    if p.is_dir():
+        raise UsageError(f"--plot {p} is a directory")
     return p
 
 
@@ -68,7 +77,7 @@ def cmd_maps(args: argparse.Namespace) -> int:
 
 # -------------------------------------------------------------------- solve
 def cmd_solve(args: argparse.Namespace) -> int:
-    plot = check_new_file(args.plot, args.force) if args.plot else None
+    plot = check_plot_file(args.plot, args.force) if args.plot else None
     navmap = load_map(args.map)
     grid = grid_model(navmap, gamma=args.gamma, slip=args.slip)
     graph = ObjectiveGraph.parse(args.dag, parse_slack(args.slack), objectives=OBJECTIVES,
@@ -128,8 +137,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     settings: dict = {}
     if args.config:
         try:
-            settings = tomllib.loads(Path(args.config).read_text())
-        except (OSError, tomllib.TOMLDecodeError) as err:
+            settings = tomllib.loads(Path(args.config).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
             raise UsageError(f"cannot read --config {args.config}: {err}") from None
     spec = RunSpec.from_settings({**settings, **given})
     spec.check()  # map, DAG, slack, env and budget, before creating anything
@@ -263,6 +272,8 @@ class OneLineParser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="tpo", description="Multi-objective RL with prioritised, slack-tolerant objectives.")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of a system error or of a bug in tpo")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("maps", help="list the bundled maps")
@@ -332,12 +343,39 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command. Every error ends in one line on stderr: a user's mistake or
+    the system's refusal (a full disk, a read-only directory) with exit code 2, an
+    interrupt with 130, anything else (a bug in tpo) with 1; ``--debug`` shows the
+    traceback of the last two."""
+    args = None
     try:
         args = build_parser().parse_args(argv)
         return args.handler(args)
-    except TPOError as err:
-        print(f"tpo: error: {err}", file=sys.stderr)
+    except (TPOError, OSError) as err:
+        if args is not None and args.debug and not isinstance(err, TPOError):
+            raise
+        print(f"tpo: error: {_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
+    except KeyboardInterrupt:
+        if args is not None and args.debug:
+            raise
+        print("tpo: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:
+        if args is not None and args.debug:
+            raise
+        text = f"{type(err).__name__}: {err}".replace("\n", " ")
+        print(f"tpo: error: internal error {text} (rerun with --debug for the traceback, "
+              "and please report it)", file=sys.stderr)
+        return 1
+
+
+def _describe(err: Exception) -> str:
+    """One line for an error: an OSError as 'what: file'."""
+    if isinstance(err, OSError) and err.strerror:
+        files = [f for f in (err.filename, err.filename2) if f is not None]
+        return f"{err.strerror}: {' -> '.join(map(str, files))}" if files else err.strerror
+    return str(err).replace("\n", " ")
 
 
 if __name__ == "__main__":

@@ -108,7 +108,10 @@ def load_map(name_or_path: str | Path) -> NavMap:
         if not path.is_file():
             raise MapError(f"no bundled map or file named '{name_or_path}' "
                            f"(bundled: {', '.join(bundled_maps())})")
-        text = path.read_text()
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as err:
+            raise MapError(f"cannot read map {path}: {err}") from None
     return parse_map(text, source)
 
 

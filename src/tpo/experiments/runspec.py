@@ -81,8 +81,8 @@ class RunSpec:
     @classmethod
     def from_toml(cls, path: str | Path) -> RunSpec:
         try:
-            return cls.from_settings(tomllib.loads(Path(path).read_text()))
-        except (OSError, tomllib.TOMLDecodeError) as err:
+            return cls.from_settings(tomllib.loads(Path(path).read_text(encoding="utf-8")))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
             raise RunError(f"cannot read {path}: {err}") from None
 
     def to_toml(self) -> str:
