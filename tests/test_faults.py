@@ -71,3 +71,57 @@ def test_a_bug_is_one_line_and_debug_shows_its_traceback(tmp_path, capsys, monke
     assert err.count("\n") == 1 and "internal error ZeroDivisionError: a bug over two" in err
     with pytest.raises(ZeroDivisionError):
         main(["--debug", "train", *ARGS, "--out", str(tmp_path / "r2")])
+
+
+@pytest.fixture(scope="module")
+def stopped(tmp_path_factory):
+    """A run stopped after update 32 (its checkpoints 16 and 32 kept), and the same
+    run trained whole."""
+    root = tmp_path_factory.mktemp("stopped")
+    assert main(["train", *ARGS, "--out", str(root / "whole")]) == 0
+    run = root / "run"
+    import shutil
+
+    shutil.copytree(root / "whole", run)
+    for p in [run / "model", run / "checkpoints" / "update-000034", run / "eval.json"]:
+        shutil.rmtree(p) if p.is_dir() else p.unlink()
+    return root
+
+
+def _copy(stopped, tmp_path):
+    import shutil
+
+    return shutil.copytree(stopped / "run", tmp_path / "run")
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "meta"])
+def test_a_damaged_last_checkpoint_falls_back_to_the_one_before(stopped, tmp_path, capsys,
+                                                                damage):
+    run = _copy(stopped, tmp_path)
+    last = run / "checkpoints" / "update-000032"
+    state = last / "state.msgpack"
+    blob = state.read_bytes()
+    if damage == "truncate":
+        state.write_bytes(blob[: len(blob) // 2])
+    elif damage == "flip":
+        state.write_bytes(blob[:100] + bytes([blob[100] ^ 1]) + blob[101:])
+    else:
+        (last / "model.json").write_text("{ not json")
+    assert main(["train", "--resume", str(run), "--quiet", "--episodes", "2"]) == 0
+    assert "skipping checkpoint update-000032" in capsys.readouterr().err
+    assert json.loads((run / "eval.json").read_text()) == \
+        json.loads((stopped / "whole" / "eval.json").read_text())
+
+
+def test_an_edited_config_is_refused_on_resume_naming_the_keys(stopped, tmp_path, capsys):
+    run = _copy(stopped, tmp_path)
+    config = run / "config.toml"
+    text = config.read_text()
+    config.write_text(text.replace("learning_rate = 0.001", "learning_rate = 0.01")
+                      .replace("seed = 0", "seed = 3"))
+    before = (run / "metrics.csv").read_text()
+    assert main(["train", "--resume", str(run), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "differs from the run's checkpoint in learning_rate, seed" \
+        in err, err
+    assert (run / "metrics.csv").read_text() == before

@@ -11,6 +11,7 @@ acts and resumes training exactly where it stopped.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from tpo.algo.train import TrainState
 from tpo.atomic import write_dir_atomic
 from tpo.errors import TPOError
 
-FORMAT = 4  # 4: a critic head per phase, Q outputs (restriction form)
+FORMAT = 5  # 5: model.json holds the SHA-256 of state.msgpack
 
 
 def state_bytes(state: TrainState, **extra: Any) -> bytes:
@@ -50,10 +51,11 @@ def restore_state(template: TrainState, blob: bytes) -> tuple[TrainState, dict[s
 def save_model(path: str | Path, meta: dict[str, Any], state: TrainState,
                overwrite: bool = False) -> Path:
     """Write the model directory ``path`` (atomically)."""
+    blob = state_bytes(state)
+    meta = {"format": FORMAT, **meta, "state_sha256": hashlib.sha256(blob).hexdigest()}
     try:
-        return write_dir_atomic(path, {"model.json": json.dumps({"format": FORMAT, **meta},
-                                                                indent=2),
-                                       "state.msgpack": state_bytes(state)}, overwrite)
+        return write_dir_atomic(path, {"model.json": json.dumps(meta, indent=2),
+                                       "state.msgpack": blob}, overwrite)
     except FileExistsError:
         raise TPOError(f"{path} exists; pass overwrite=True to replace it") from None
 
@@ -74,13 +76,17 @@ def read_model(path: str | Path) -> tuple[dict[str, Any], bytes]:
         check_meta(meta)
     except TPOError as err:
         raise TPOError(f"{path}/model.json: {err}") from None
+    if hashlib.sha256(blob).hexdigest() != meta["state_sha256"]:
+        raise TPOError(f"{path}/state.msgpack is damaged (its SHA-256 is not the one "
+                       "model.json records)")
     return meta, blob
 
 
 #: ``model.json``'s keys and their types (the env spec is checked by tpo.envs).
 META_KEYS: dict[str, type] = {
     "format": int, "config": dict, "dag": str, "slack": list, "env": dict, "seed": int,
-    "num_timesteps": int, "total_timesteps": int, "updates_done": int, "num_updates": int}
+    "num_timesteps": int, "total_timesteps": int, "updates_done": int, "num_updates": int,
+    "state_sha256": str}
 
 
 def check_meta(meta: dict[str, Any]) -> None:

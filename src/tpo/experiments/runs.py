@@ -21,6 +21,7 @@ import json
 import math
 import os
 import shutil
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -180,6 +181,34 @@ def create_run(out: str | Path, spec: RunSpec, force: bool = False
     return out, replaced
 
 
+def _newest_good(saved: list[Path], trust_module: str | None) -> TPO:
+    """The newest checkpoint that loads; a damaged one is reported and skipped."""
+    for path in reversed(saved):
+        try:
+            return TPO.load(path, trust_module)
+        except TPOError as err:
+            if "is damaged" not in str(err) and "is not a saved tpo model" not in str(err):
+                raise
+            print(f"tpo: warning: skipping checkpoint {path.name}: {err}", file=sys.stderr)
+    raise RunError(f"every checkpoint of {saved[0].parent.parent} is damaged; train it "
+                   "again with --force")
+
+
+def _check_unchanged(spec: RunSpec, fresh: TPO, saved: TPO, run_dir: Path) -> None:
+    """Refuse to resume when ``config.toml`` (whose model is ``fresh``) no longer
+    describes the checkpoint's run."""
+    ours, theirs = fresh.config.to_dict(), saved.config.to_dict()
+    changed = [k for k in ours if ours[k] != theirs.get(k)]
+    pairs = {"dag": (fresh.graph.spec, saved.graph.spec),
+             "slack": (fresh.graph.slacks, saved.graph.slacks), "seed": (fresh.seed, saved.seed),
+             "steps": (spec.steps, saved.trainer.total_timesteps),
+             "map/env": (fresh.env.to_spec(), saved.env.to_spec())}
+    changed += [k for k, (a, b) in pairs.items() if a != b]
+    if changed:
+        raise RunError(f"{run_dir}/config.toml differs from the run's checkpoint in "
+                       f"{', '.join(changed)}; put it back, or train a new run with it")
+
+
 Progress = Callable[[TPO, dict[str, np.ndarray], int], None]
 
 
@@ -203,7 +232,10 @@ def _train(run_dir: Path, episodes: int, progress: Progress | None, chunk_update
            replaced: Replaced | None, trust_module: str | None) -> dict[str, Any]:
     spec = RunSpec.from_toml(run_dir / "config.toml")
     saved = checkpoints(run_dir)
-    model = TPO.load(saved[-1], trust_module) if saved else spec.model()
+    model = spec.model()
+    if saved:
+        fresh, model = model, _newest_good(saved, trust_module)
+        _check_unchanged(spec, fresh, model, run_dir)
     log = MetricsLog(run_dir, model.env.objectives, model.phases, spec.config.batch_size,
                      int(model.state.update) if saved else 0)
 
