@@ -130,3 +130,18 @@ def test_bad_input_gives_one_line_and_exit_2(args, message, tmp_path, capsys):
     assert err.startswith("tpo: error: ") and err.count("\n") == 1, err
     assert message in err, err
     assert "Traceback" not in err
+
+
+def test_failed_settings_are_never_saved(tmp_path, capsys):
+    """A reproduction refused for its settings leaves nothing that would refuse the
+    corrected command on the same --out (issue 15, item 4)."""
+    out = tmp_path / "repro"
+    assert main(["reproduce", "--quick", "--steps", "0", "--out", str(out)]) == 2
+    assert "total_timesteps must be an integer from 6144" in capsys.readouterr().err
+    assert not out.exists()
+    out.mkdir()
+    assert main(["reproduce", "--quick", "--steps", "0", "--out", str(out), "--quiet"]) == 2
+    assert sorted(p.name for p in out.iterdir()) == [".tpo.lock"]
+    run = tmp_path / "run"
+    assert main(["train", "--map", "small", "--steps", "0", "--out", str(run)]) == 2
+    assert not run.exists()

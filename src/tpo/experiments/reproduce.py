@@ -22,12 +22,16 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
 from tpo.experiments.paper import Panel, Settings
+
+if TYPE_CHECKING:
+    from tpo.algo import TPOConfig
+    from tpo.envs.grid import GridNav
 from tpo.experiments.pool import report_progress, run_jobs
 from tpo.experiments.report import VERDICTS, directions, write_outputs
 
@@ -46,18 +50,37 @@ class Reproduction:
                 f"({seconds:.0f} s of panel time)")
 
 
-def run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path
-              ) -> dict[str, Any]:
-    """Train and evaluate one panel (in a worker process); write its JSON."""
+def panel_problem(panel: Panel, xs: list[float], settings: Settings
+                  ) -> tuple[GridNav, TPOConfig, list[list[float]]]:
+    """The training env, the config and every run's slacks of one panel."""
     from tpo.algo import TPOConfig
     from tpo.envs.grid import GridNav
-    from tpo.experiments.sweep import run_sweep
     from tpo.graph import ObjectiveGraph
 
     env = GridNav(load_map(settings.map), random_start=True)
     config = TPOConfig(constraint=settings.constraint, completion=settings.completion)
     n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0, objectives=OBJECTIVES).edges)
-    slacks = [panel.slack(x, n_edges) for x in xs]
+    return env, config, [panel.slack(x, n_edges) for x in xs]
+
+
+def check_settings(settings: Settings) -> None:
+    """Raise on anything a panel's training would refuse (map, budget, config),
+    before anything is written."""
+    from tpo.algo import Trainer
+    from tpo.graph import ObjectiveGraph
+
+    for panel, xs in settings.jobs():
+        env, config, slacks = panel_problem(panel, xs, settings)
+        graph = ObjectiveGraph.parse(panel.dag, slacks[0], objectives=env.objectives)
+        Trainer(env, graph, config, settings.steps)
+
+
+def run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path
+              ) -> dict[str, Any]:
+    """Train and evaluate one panel (in a worker process); write its JSON."""
+    from tpo.experiments.sweep import run_sweep
+
+    env, config, slacks = panel_problem(panel, xs, settings)
     t0 = time.monotonic()
     result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps,
                        progress=lambda done, total: report_progress(panel.name, done / total),
@@ -88,6 +111,7 @@ def reproduce(out: str | Path, settings: Settings | None = None,
     called as panels advance. ``settings`` default to the paper's (:class:`Settings`).
     """
     settings = settings or Settings()
+    check_settings(settings)
     out = Path(out)
     (out / "panels").mkdir(parents=True, exist_ok=True)
     settings_file = out / "settings.json"
