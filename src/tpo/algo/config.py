@@ -103,13 +103,14 @@ class TPOConfig:
                     or not 0 <= value <= 1 or (name == "gamma" and value == 1):
                 raise ConfigError(f"{name} must be in [0, 1{')' if name == 'gamma' else ']'}, "
                                   f"got {value!r}")
-        hidden = tuple(self.hidden)
-        if not hidden or not all(isinstance(h, int) and h > 0 for h in hidden):
+        hidden = tuple(self.hidden) if isinstance(self.hidden, tuple | list) else ()
+        if not hidden or not all(isinstance(h, int) and not isinstance(h, bool) and h > 0
+                                 for h in hidden):
             raise ConfigError(f"hidden must be positive layer widths, got {self.hidden!r}")
         object.__setattr__(self, "hidden", hidden)
-        if self.activation not in ("tanh", "relu"):
+        if not isinstance(self.activation, str) or self.activation not in ("tanh", "relu"):
             raise ConfigError(f"activation must be 'tanh' or 'relu', got {self.activation!r}")
-        if self.beta != "auto" and (isinstance(self.beta, bool) or not isinstance(
+        if not (isinstance(self.beta, str) and self.beta == "auto") and (isinstance(self.beta, bool) or not isinstance(
                 self.beta, (int, float)) or not math.isfinite(self.beta) or self.beta < 0):
             raise ConfigError(f'beta must be a finite number >= 0 or "auto", got '
                               f"{self.beta!r}")
@@ -118,18 +119,20 @@ class TPOConfig:
         _nonnegative("explore", self.explore)
         if self.explore >= 1:
             raise ConfigError(f"explore must be in [0, 1), got {self.explore!r}")
-        if self.constraint not in CONSTRAINTS:
+        if not isinstance(self.constraint, str) or self.constraint not in CONSTRAINTS:
             raise ConfigError(f"constraint must be one of {', '.join(CONSTRAINTS)}, "
                               f"got {self.constraint!r}")
         for name in ("anneal_lr", "completion"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
-        if self.advantage not in ADVANTAGE_FORMS:
+        if not isinstance(self.advantage, str) or self.advantage not in ADVANTAGE_FORMS:
             raise ConfigError(f"advantage must be one of {', '.join(ADVANTAGE_FORMS)}, "
                               f"got {self.advantage!r}")
         if self.phase_fractions is not None:
-            fr = tuple(self.phase_fractions)
-            if not fr or any(not isinstance(f, (int, float)) or not f > 0 for f in fr):
+            fr = tuple(self.phase_fractions) if isinstance(self.phase_fractions,
+                                                           tuple | list) else ()
+            if not fr or any(isinstance(f, bool) or not isinstance(f, (int, float))
+                             or not math.isfinite(f) or not f > 0 for f in fr):
                 raise ConfigError(f"phase_fractions must be positive numbers, got {fr!r}")
             object.__setattr__(self, "phase_fractions", fr)
 
@@ -151,6 +154,8 @@ class TPOConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TPOConfig:
+        if not isinstance(data, dict):
+            raise ConfigError(f"a config is a table of settings, got {type(data).__name__}")
         known = {f.name for f in fields(cls)}
         removed = set(data) & REMOVED
         if removed:

@@ -64,7 +64,7 @@ def check_spec(spec: Any) -> None:
     if not isinstance(spec, dict):
         raise TPOError(f"env spec must be a table, got {type(spec).__name__}")
     kind = spec.get("kind")
-    if kind not in SPEC_KEYS:
+    if not isinstance(kind, str) or kind not in SPEC_KEYS:
         raise TPOError(f"unknown env kind {kind!r} (known: {', '.join(SPEC_KEYS)})")
     keys = SPEC_KEYS[kind]
     unknown = sorted(set(spec) - set(keys) - {"kind"})

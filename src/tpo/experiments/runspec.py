@@ -58,6 +58,8 @@ class RunSpec:
         slack = run["slack"]
         slack = [slack] if isinstance(slack, int | float) else slack
         try:
+            if isinstance(slack, str) or any(isinstance(v, bool) for v in slack):
+                raise TypeError
             slack = tuple(float(v) for v in slack)
         except (TypeError, ValueError):
             raise RunError(f"slack must be a number or a list of numbers, got {slack!r}"
@@ -67,9 +69,17 @@ class RunSpec:
                 raise RunError(f"{name} must be an integer, got {run[name]!r}")
         if not 0 <= run["seed"] < 2**32:
             raise RunError(f"seed must be an integer from 0 to 2**32 - 1, got {run['seed']}")
+        for name in ("map", "dag", "observation", "env"):
+            if not isinstance(run[name], str):
+                raise RunError(f"{name} must be a string, got {run[name]!r:.60}")
+        if isinstance(run["slip"], bool) or not isinstance(run["slip"], int | float):
+            raise RunError(f"slip must be a number, got {run['slip']!r:.60}")
         objectives = run["objectives"]
         if isinstance(objectives, str):
             objectives = [o.strip() for o in objectives.split(",") if o.strip()]
+        if not isinstance(objectives, list | tuple) or not all(isinstance(o, str)
+                                                                for o in objectives):
+            raise RunError(f"objectives must be names, got {objectives!r:.60}")
         if run["env"] and not objectives:
             raise RunError(f"name the reward components of env '{run['env']}' in order: "
                            "--objectives a,b,...")
