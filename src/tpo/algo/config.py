@@ -110,8 +110,9 @@ class TPOConfig:
         object.__setattr__(self, "hidden", hidden)
         if not isinstance(self.activation, str) or self.activation not in ("tanh", "relu"):
             raise ConfigError(f"activation must be 'tanh' or 'relu', got {self.activation!r}")
-        if not (isinstance(self.beta, str) and self.beta == "auto") and (isinstance(self.beta, bool) or not isinstance(
-                self.beta, (int, float)) or not math.isfinite(self.beta) or self.beta < 0):
+        auto = isinstance(self.beta, str) and self.beta == "auto"
+        if not auto and (isinstance(self.beta, bool) or not isinstance(self.beta, int | float)
+                         or not math.isfinite(self.beta) or self.beta < 0):
             raise ConfigError(f'beta must be a finite number >= 0 or "auto", got '
                               f"{self.beta!r}")
         _positive("carry_temperature", self.carry_temperature)
