@@ -81,7 +81,7 @@ def variant(old: str, new: str) -> str:
         (variant("avoid = [[1, 2, 1, 2]]", "avoid = [[1, 2, 1]]"), "must be 4 integers"),
         (variant("avoid = [[1, 2, 1, 2]]", "avoid = 3"), "'avoid' must be a list"),
         (variant("#S.G#\n#...#", "#S#G#\n###.#"), "goal [1, 3] is unreachable from start [1, 1]"),
-        (variant("max_steps = 20", "max_steps = 0"), "max_steps must be a positive integer"),
+        (variant("max_steps = 20", "max_steps = 0"), "max_steps must be an integer from 1 to"),
         (variant("max_steps = 20", "max_step = 20"), "unknown key(s) max_step"),
         (variant('name = "tiny"', 'name = "tiny'), "bad TOML"),
         ('name = "x"\n', "needs a 'grid' string"),

@@ -30,7 +30,7 @@ import numpy as np
 from flax import struct
 
 from tpo.envs.base import JaxEnv, nav_reward
-from tpo.envs.maps import NavMap
+from tpo.envs.maps import NavMap, check_max_steps
 from tpo.errors import MapError
 
 ACTION_KINDS = ("velocity", "heading")
@@ -77,9 +77,8 @@ class ContinuousNav(JaxEnv):
             raise MapError(f"noise must be a finite number >= 0, got {noise}")
         if n_beams < 1 or max_range <= 0:
             raise MapError("a range sensor needs n_beams >= 1 and max_range > 0")
-        steps = int(np.ceil(navmap.max_steps / speed)) if max_steps is None else max_steps
-        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-            raise MapError(f"max_steps must be a positive integer, got {steps!r}")
+        steps = check_max_steps(int(np.ceil(navmap.max_steps / speed)) if max_steps is None
+                                else max_steps)
         self.navmap, self.action, self.max_range = navmap, action, float(max_range)
         self.action_space = (gym.spaces.Discrete(8) if action == "heading"
                              else gym.spaces.Box(-1.0, 1.0, (2,), np.float32))

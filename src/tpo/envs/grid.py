@@ -37,7 +37,7 @@ from flax import struct
 
 from tpo.envs.base import JaxEnv, nav_reward
 from tpo.envs.grid_model import MOVES, GridModel, grid_model, slip_matrix
-from tpo.envs.maps import NavMap
+from tpo.envs.maps import NavMap, check_max_steps
 from tpo.errors import MapError
 
 OBSERVATIONS = ("factored", "onehot", "coords")
@@ -94,9 +94,7 @@ class GridNav(JaxEnv):
         self.navmap = navmap
         self.observation = observation
         table = observation_table(navmap, observation)
-        steps = navmap.max_steps if max_steps is None else max_steps
-        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-            raise MapError(f"max_steps must be a positive integer, got {steps!r}")
+        steps = check_max_steps(navmap.max_steps if max_steps is None else max_steps)
         free = ~navmap.walls
         free[navmap.goal] = False
         starts = np.argwhere(free) if random_start else np.array([navmap.start])

@@ -35,6 +35,7 @@ from tpo.errors import MapError
 
 OBJECTIVES = ("goal", "avoid", "monitor")
 CELLS = {"#": True, ".": False, "S": False, "G": False}
+MAX_STEPS = 2**31 - 1  # the env's step counter is an int32
 KEYS = {"name", "max_steps", "grid", "avoid", "monitor", "start", "goal", "description"}
 
 
@@ -95,6 +96,14 @@ def bundled_maps() -> list[str]:
     folder = resources.files("tpo.envs") / "maps"
     return sorted(p.name.removesuffix(".toml") for p in folder.iterdir()
                   if p.name.endswith(".toml"))
+
+
+def check_max_steps(steps: Any) -> int:
+    """``steps`` if it is a valid episode limit, else :class:`MapError`."""
+    if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= MAX_STEPS:
+        raise MapError(f"max_steps must be an integer from 1 to {MAX_STEPS} (an int32 step "
+                       f"counter), got {steps!r}")
+    return steps
 
 
 def load_map(name_or_path: str | Path) -> NavMap:
@@ -161,8 +170,10 @@ def map_from_dict(data: dict[str, Any], source: str = "<map>") -> NavMap:
     if not isinstance(name, str) or not name:
         raise fail("'name' must be a non-empty string")
     max_steps = data.get("max_steps", 200)
-    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
-        raise fail(f"max_steps must be a positive integer, got {max_steps!r}")
+    try:
+        check_max_steps(max_steps)
+    except MapError as err:
+        raise fail(str(err)) from None
     avoid = _rects(data.get("avoid", []), "avoid", walls.shape, fail)
     monitor = _rects(data.get("monitor", []), "monitor", walls.shape, fail)
     if not _reachable(walls, start, goal):

@@ -60,8 +60,8 @@ def resolve_name(token: str, names: Sequence[str]) -> str:
     if len(hits) == 1:
         return hits[0]
     if not hits:
-        raise GraphError(f"unknown objective '{token.strip()}'; known: {', '.join(names)}")
-    raise GraphError(f"ambiguous objective '{token.strip()}': matches {', '.join(hits)}")
+        raise GraphError(f"unknown objective {token.strip()!r}; known: {', '.join(names)}")
+    raise GraphError(f"ambiguous objective {token.strip()!r}: matches {', '.join(hits)}")
 
 
 @dataclass(frozen=True)
@@ -153,7 +153,7 @@ class ObjectiveGraph:
         for chain in spec.split(","):
             tokens = [t.strip() for t in chain.split(">")]
             if any(not t for t in tokens):
-                raise GraphError(f"empty objective name in DAG spec '{spec.strip()}'")
+                raise GraphError(f"empty objective name in DAG spec {spec.strip()!r}")
             pairs.extend(itertools.pairwise(tokens))
             if len(tokens) == 1:
                 lone.append(tokens[0])
@@ -276,7 +276,7 @@ class ObjectiveGraph:
 
     def _known(self, name: str) -> None:
         if name not in self.objectives:
-            raise GraphError(f"unknown objective '{name}'; known: {', '.join(self.objectives)}")
+            raise GraphError(f"unknown objective {name!r}; known: {', '.join(self.objectives)}")
 
 
 # -------------------------------------------------------------------- helpers
@@ -331,7 +331,7 @@ def _validate(objectives: tuple[str, ...], edges: tuple[Edge, ...]) -> None:
         if not isinstance(n, str) or not n.strip() or any(c in n for c in ">,"):
             raise GraphError(f"bad objective name {n!r}: non-empty, without '>' or ','")
         if lowered.count(n.lower()) > 1:
-            raise GraphError(f"duplicate objective '{n}'")
+            raise GraphError(f"duplicate objective {n!r}")
     seen: set[tuple[str, str]] = set()
     for e in edges:
         for n in (e.parent, e.child):
