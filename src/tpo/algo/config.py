@@ -67,7 +67,8 @@ class TPOConfig:
     and the earlier completion phases' at zero slack: the tie rule, learned"""
     tolerance: float = 0.2
     """restriction: an action is admissible when its violation of an edge is at most
-    the slack plus this share of the parent objective's one-step reward range"""
+    the slack plus this share of the parent objective's one-step reward range; the
+    penalty form allows the completion constraints (zero slack) the same margin"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of

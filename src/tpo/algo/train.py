@@ -120,7 +120,8 @@ class Trainer:
                           and isinstance(space, gym.spaces.Discrete))
         self.problem = Problem.build(graph, env.objectives, config, env.reward_low,
                                      env.reward_high)
-        #: restriction: each constraint's tolerance, a share of its parent's reward range
+        #: each constraint's tolerance, a share of its parent's reward range (restriction:
+        #: every constraint; penalty: the completion constraints, at zero slack)
         parents = self.problem.reward[self.problem.head]
         self.tolerance = (config.tolerance * reward_ranges(env.reward_low, env.reward_high)
                           [parents]).astype(np.float32)
@@ -358,7 +359,9 @@ class Trainer:
             penalty = jnp.zeros_like(reward)
             q_target = adv_all
         else:
-            c = violations(adv_all, jnp.asarray(prob.head), prob.constraint_slacks(slack))
+            completion = jnp.asarray(prob.slack_index == len(prob.graph.edges), jnp.float32)
+            c = violations(adv_all, jnp.asarray(prob.head), prob.constraint_slacks(slack)
+                           + completion * jnp.asarray(self.tolerance))
             penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
             q_target = None
         # An exploring step cuts the trace of the policy's returns before it.
