@@ -94,3 +94,56 @@ def test_force_replaces_a_finished_run_and_leaves_nothing_aside(finished, tmp_pa
     assert json.loads((run / "eval.json").read_text())["exact"]
     assert "seed = 1" in (run / "config.toml").read_text()
     assert [p.name for p in tmp_path.iterdir()] == ["run"]
+
+
+@pytest.mark.parametrize("where", ["checkpoints/notes.txt", "model/notes.txt", "tb/notes.txt",
+                                   "checkpoints/update-000003/notes.txt",
+                                   "checkpoints/update-999999/config.toml", "model/link"])
+def test_force_refuses_foreign_files_anywhere_in_the_run(finished, tmp_path, capsys, where):
+    run = copy_run(finished, tmp_path / "run")
+    target = run / where
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if target.name == "link":
+        target.symlink_to(tmp_path)
+    else:
+        target.write_text("precious")
+    assert main(["train", *TINY, "--out", str(run), "--force"]) == 2
+    err = capsys.readouterr().err
+    assert "which tpo does not write in a run" in err, err
+    assert target.is_symlink() or target.read_text() == "precious"
+
+
+def test_a_move_that_fails_half_way_puts_everything_back(finished, tmp_path, monkeypatch,
+                                                         capsys):
+    import tpo.experiments.runs as runs
+
+    run = copy_run(finished, tmp_path / "run")
+    before = {p.relative_to(run): p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    real, moved = runs.os.replace, []
+
+    def refuse_the_third(src, dst):
+        moved.append(src)
+        if len(moved) == 3:  # one file that cannot move (chattr +i)
+            raise PermissionError(1, "Operation not permitted", str(src))
+        return real(src, dst)
+
+    monkeypatch.setattr(runs.os, "replace", refuse_the_third)
+    assert main(["train", *TINY, "--out", str(run), "--force"]) == 2
+    assert "Operation not permitted" in capsys.readouterr().err
+    monkeypatch.undo()
+    after = {p.relative_to(run): p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    assert after == before
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]
+
+
+def test_a_run_stranded_by_a_killed_force_is_named_not_lost(finished, tmp_path, capsys):
+    run = copy_run(finished, tmp_path / "run")
+    holder = tmp_path / ".run.replaced.abc123"
+    holder.mkdir()
+    (run / "eval.json").rename(holder / "eval.json")  # as a kill mid-replacement leaves it
+    for args in (["train", *TINY, "--out", str(run), "--force"],
+                 ["train", "--resume", str(run), "--quiet"]):
+        assert main(args) == 2
+        assert f"an interrupted --force left the run it replaced in {holder}" in \
+            capsys.readouterr().err
+    assert (holder / "eval.json").exists()

@@ -17,9 +17,11 @@ file that a later run trusts half-written.
 
 from __future__ import annotations
 
+import glob
 import json
 import math
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -111,19 +113,60 @@ def check_replaceable(out: Path) -> None:
             or Path.cwd().resolve().is_relative_to(where):
         raise RunError(f"--force will not replace {out}: it is the working directory or "
                        "one of its parents, the home directory or a filesystem root")
-    if out.is_symlink() or not out.is_dir():
+    if out.is_symlink():
+        raise RunError(f"--force will not replace {out}: it is a symlink; give the run "
+                       "directory itself")
+    if not out.is_dir():
         raise RunError(f"--force will not replace {out}: not a run directory")
-    temporaries = tuple(f".{name}." for name in RUN_ENTRIES)  # of tpo.atomic's writers
-    foreign = sorted(p.name for p in out.iterdir() if p.name not in (*RUN_ENTRIES, LOCK_FILE)
-                     and not p.name.startswith(temporaries))
+    foreign = _foreign(out)
     if foreign:
-        raise RunError(f"--force will not replace {out}: it holds {foreign[0]!r}, which "
-                       "tpo does not write in a run")
+        raise RunError(f"--force will not replace {out}: it holds "
+                       f"{str(foreign.relative_to(out))!r}, which tpo does not write in a run")
     try:
         RunSpec.from_toml(out / "config.toml")
     except (OSError, TPOError) as err:
         raise RunError(f"--force will not replace {out}: it is not a tpo run ({err})"
                        ) from None
+
+
+MODEL_FILES = ("model.json", "state.msgpack")
+CHECKPOINT = re.compile(r"\.?update-\d+(\..+)?")  # a checkpoint, or its temporary
+
+
+def _foreign(run: Path) -> Path | None:
+    """The first file or directory in ``run`` that tpo does not write there (a
+    symlink anywhere included), or None. A run holds its three files and lock,
+    ``model/`` and ``checkpoints/update-N/`` holding a saved model's two files,
+    TensorBoard event files in ``tb/``, and tpo.atomic's temporaries of these."""
+    for entry in sorted(run.iterdir()):
+        name = entry.name
+        if entry.is_symlink():
+            return entry
+        if name in ("config.toml", "metrics.csv", "eval.json", LOCK_FILE) or \
+                name.startswith((".config.toml.", ".metrics.csv.", ".eval.json.")):
+            bad = None if entry.is_file() else entry
+        elif name == "model" or name.startswith(".model."):
+            bad = _not_a_model(entry)
+        elif name == "checkpoints" and entry.is_dir():
+            bad = next((b for point in sorted(entry.iterdir()) if (
+                b := _not_a_model(point) if CHECKPOINT.fullmatch(point.name) else point)), None)
+        elif name == "tb" and entry.is_dir():
+            bad = next((p for p in sorted(entry.iterdir()) if p.is_symlink() or not p.is_file()
+                        or not p.name.startswith("events.out.tfevents.")), None)
+        else:
+            bad = entry
+        if bad is not None:
+            return bad
+    return None
+
+
+def _not_a_model(directory: Path) -> Path | None:
+    """``directory`` itself if it is not a directory, else its first entry that is
+    not one of a saved model's two files."""
+    if directory.is_symlink() or not directory.is_dir():
+        return directory
+    return next((p for p in sorted(directory.iterdir())
+                 if p.is_symlink() or not p.is_file() or p.name not in MODEL_FILES), None)
 
 
 class Replaced:
@@ -135,18 +178,35 @@ class Replaced:
         self.run_dir = run_dir
         self.holder = Path(tempfile.mkdtemp(prefix=f".{run_dir.name}.replaced.",
                                             dir=run_dir.parent))
-        for entry in _entries(run_dir):
-            os.replace(entry, self.holder / entry.name)
+        try:
+            for entry in _entries(run_dir):
+                os.replace(entry, self.holder / entry.name)
+        except BaseException:  # put back what moved, and say nothing was replaced
+            self._put_back()
+            raise
 
     def discard(self) -> None:
         shutil.rmtree(self.holder)
 
     def restore(self) -> None:
+        """Remove the new run's files and put the old ones back."""
         for entry in _entries(self.run_dir):
             shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
+        self._put_back()
+
+    def _put_back(self) -> None:
         for entry in self.holder.iterdir():
             os.replace(entry, self.run_dir / entry.name)
         self.holder.rmdir()
+
+
+def check_not_stranded(run_dir: Path, own: Replaced | None = None) -> None:
+    """Refuse to work on ``run_dir`` while an interrupted ``--force`` (a kill before
+    the new run started) keeps the run it replaced aside."""
+    for holder in run_dir.parent.glob(f".{glob.escape(run_dir.name)}.replaced.*"):
+        if own is None or holder != own.holder:
+            raise RunError(f"an interrupted --force left the run it replaced in {holder}; "
+                           f"move its files back into {run_dir} or delete it, then retry")
 
 
 def _entries(directory: Path) -> list[Path]:
@@ -164,6 +224,7 @@ def create_run(out: str | Path, spec: RunSpec, force: bool = False
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise RunError(f"--out {out} is a file, not a run directory")
+    check_not_stranded(out)
     replaced = None
     if out.exists() and _entries(out):
         if not force:
@@ -230,6 +291,7 @@ def train_run(run_dir: str | Path, episodes: int = 100, progress: Progress | Non
 
 def _train(run_dir: Path, episodes: int, progress: Progress | None, chunk_updates: int,
            replaced: Replaced | None, trust_module: str | None) -> dict[str, Any]:
+    check_not_stranded(run_dir, replaced)
     spec = RunSpec.from_toml(run_dir / "config.toml")
     saved = checkpoints(run_dir)
     model = spec.model()
