@@ -119,3 +119,19 @@ def test_model_json_is_checked_against_its_schema(saved, tmp_path, capsys, edit,
 def test_an_untouched_model_loads(saved):
     model = TPO.load(saved / "model")
     assert model.graph.spec == TPO("small", "A>G").graph.spec
+
+
+def test_a_config_that_does_not_fit_the_state_is_one_line(saved, tmp_path, capsys):
+    import hashlib
+
+    def wider(meta):
+        meta["config"]["hidden"] = [128, 128]
+
+    run = edited(saved, tmp_path, wider)
+    meta = json.loads((run / "model" / "model.json").read_text())
+    meta["state_sha256"] = hashlib.sha256((run / "model" / "state.msgpack").read_bytes()
+                                          ).hexdigest()
+    (run / "model" / "model.json").write_text(json.dumps(meta))
+    assert main(["eval", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "does not match model.json" in err and "128" in err, err

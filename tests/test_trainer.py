@@ -128,6 +128,8 @@ def test_phase_split_and_bad_budgets(small):
     config = TPOConfig(num_envs=4, num_steps=8, phase_fractions=(1, 1, 2))
     trainer = Trainer(train_env, graph, config, 4 * 8 * 40)
     assert trainer.phase_updates.tolist() == [10, 10, 20]
+    huge = TPOConfig(num_envs=4, num_steps=8, phase_fractions=(1e308,) * 3)
+    assert Trainer(train_env, graph, huge, 4 * 8 * 30).phase_updates.tolist() == [10, 10, 10]
     with pytest.raises(ConfigError, match="total_timesteps must be an integer from 96 "):
         Trainer(train_env, graph, config, 50)
     with pytest.raises(ConfigError, match="phase_fractions has 2 values for 3 phase"):
@@ -151,13 +153,15 @@ def test_schedules_restart_with_every_phase(small):
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"num_envs": 0}, "num_envs must be a positive integer"),
+        ({"num_envs": 0}, "num_envs must be an integer from 1 to 65536"),
+        ({"num_envs": 10**20}, "num_envs must be an integer from 1 to 65536"),
         ({"num_minibatches": 3}, "num_minibatches (3) must divide"),
         ({"learning_rate": -1.0}, "learning_rate must be a finite number > 0"),
         ({"gamma": 1.0}, "gamma must be in [0, 1)"),
         ({"beta": -2.0}, "beta must be a finite number >= 0"),
         ({"advantage": "eq10"}, "advantage must be one of penalized, literal"),
-        ({"hidden": (64, 0)}, "hidden must be positive layer widths"),
+        ({"hidden": (64, 0)}, "hidden must be 1 to 16 layer widths from 1 to 4096"),
+        ({"hidden": (3_000_000_000,)}, "hidden must be 1 to 16 layer widths"),
         ({"anneal_lr": 1}, "anneal_lr must be true or false"),
     ],
 )

@@ -27,8 +27,8 @@ class LockError(TPOError):
 def exclusive(directory: str | Path, create: bool = False) -> Iterator[Path]:
     """Hold ``directory``'s lock for the ``with`` block, or raise :class:`LockError`
     naming the holder's pid at once. ``create`` makes the directory (and its
-    parents) if it is missing, and removes it again if the block fails while it
-    holds nothing but the lock."""
+    parents) if it is missing. If the block fails, a lock file it made is removed,
+    and so is a directory it made that is then empty."""
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise LockError(f"{directory} is a file, not a directory")
@@ -40,6 +40,7 @@ def exclusive(directory: str | Path, create: bool = False) -> Iterator[Path]:
         except FileExistsError:  # another process made it first: its lock decides
             pass
     path = directory / LOCK_FILE
+    existed = path.exists()
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
     try:
         try:
@@ -52,9 +53,10 @@ def exclusive(directory: str | Path, create: bool = False) -> Iterator[Path]:
         os.write(fd, str(os.getpid()).encode())
         try:
             yield directory
-        except BaseException:
-            if made and [p.name for p in directory.iterdir()] == [LOCK_FILE]:
-                path.unlink()
+        except BaseException:  # leave nothing behind in a directory tpo was refused
+            if not existed:
+                path.unlink(missing_ok=True)
+            if made and not any(directory.iterdir()):
                 directory.rmdir()
             raise
     finally:

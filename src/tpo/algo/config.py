@@ -17,6 +17,9 @@ CONSTRAINTS = ("restriction", "penalty")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 
 
+MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
+
+
 class ConfigError(TPOError):
     """A bad hyperparameter."""
 
@@ -87,10 +90,11 @@ class TPOConfig:
     temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
 
     def __post_init__(self) -> None:
-        for name in ("num_envs", "num_steps", "update_epochs", "num_minibatches"):
+        for name, most in (("num_envs", 2**16), ("num_steps", 2**20), ("update_epochs", 1000),
+                           ("num_minibatches", 2**20)):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= most:
+                raise ConfigError(f"{name} must be an integer from 1 to {most}, got {value!r}")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ConfigError(f"num_minibatches ({self.num_minibatches}) must divide "
                               f"num_envs * num_steps ({self.num_envs * self.num_steps})")
@@ -105,9 +109,11 @@ class TPOConfig:
                 raise ConfigError(f"{name} must be in [0, 1{')' if name == 'gamma' else ']'}, "
                                   f"got {value!r}")
         hidden = tuple(self.hidden) if isinstance(self.hidden, tuple | list) else ()
-        if not hidden or not all(isinstance(h, int) and not isinstance(h, bool) and h > 0
-                                 for h in hidden):
-            raise ConfigError(f"hidden must be positive layer widths, got {self.hidden!r}")
+        if not hidden or len(hidden) > 16 or not all(
+                isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= MAX_WIDTH
+                for h in hidden):
+            raise ConfigError(f"hidden must be 1 to 16 layer widths from 1 to {MAX_WIDTH}, "
+                              f"got {self.hidden!r:.60}")
         object.__setattr__(self, "hidden", hidden)
         if not isinstance(self.activation, str) or self.activation not in ("tanh", "relu"):
             raise ConfigError(f"activation must be 'tanh' or 'relu', got {self.activation!r}")

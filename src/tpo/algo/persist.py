@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 from flax import serialization
 
 from tpo.algo.train import TrainState
@@ -41,8 +42,13 @@ def restore_state(template: TrainState, blob: bytes) -> tuple[TrainState, dict[s
         if found != FORMAT:
             raise ValueError(f"written by another version of tpo (format {found!r}; this "
                              f"version reads {FORMAT})")
-        state = serialization.from_state_dict(
-            template.replace(key=jax.random.key_data(template.key)), saved.pop("state"))
+        like = template.replace(key=jax.random.key_data(template.key))
+        state = serialization.from_state_dict(like, saved.pop("state"))
+        for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(like),
+                                     jax.tree.leaves(state), strict=True):
+            if jnp.shape(want) != jnp.shape(got):
+                raise ValueError(f"{jax.tree_util.keystr(path)} has shape {jnp.shape(got)}, "
+                                 f"not {jnp.shape(want)}")
     except (ValueError, KeyError, TypeError, AttributeError) as err:
         raise ValueError(str(err)) from None
     return state.replace(key=jax.random.wrap_key_data(state.key)), saved

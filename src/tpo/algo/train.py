@@ -133,6 +133,7 @@ class Trainer:
             raise ConfigError(f"phase_fractions has {len(config.phase_fractions)} values for "
                               f"{n_phases} phase(s)")
         fractions = np.asarray(config.phase_fractions or [1.0] * n_phases, float)
+        fractions = fractions / fractions.max()  # sums without overflow
         per_update = config.batch_size
         most = per_update * (MAX_UPDATES - 1)
         if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) \

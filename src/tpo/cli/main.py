@@ -6,7 +6,9 @@ Every user mistake ends in one line ``tpo: error: ...`` on stderr and exit code 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
 import os
 import sys
 import time
@@ -30,20 +32,24 @@ EXIT_USAGE = 2
 def parse_slack(text: str, option: str = "--slack") -> list[float]:
     """``"0"`` or ``"0,100"`` -> floats (the graph checks sign and count)."""
     try:
-        return [float(v) for v in text.split(",")]
+        values = [float(v) for v in text.split(",")]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError
+        return values
     except ValueError:
-        raise UsageError(f"bad {option} '{text}': give a number or comma-separated numbers"
+        raise UsageError(f"bad {option} {text!r}: give a finite number or comma-separated "
+                         "finite numbers"
                          ) from None
 
 
-def positive_int(text: str) -> int:
-    """An argparse type: an integer >= 1."""
+def episodes(text: str) -> int:
+    """An argparse type: a number of episodes, 1 to 1,000,000."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    if not 1 <= value <= 10**6:
+        raise argparse.ArgumentTypeError(f"must be from 1 to 1000000, got {value}")
     return value
 
 
@@ -57,7 +63,7 @@ def check_plot_file(path: str, force: bool) -> Path:
     if p.suffix[1:].lower() not in formats:
         raise UsageError(f"--plot {p}: give a file ending in one of "
                          f"{', '.join('.' + f for f in sorted(formats))}")
-    if p.exists() and not force:
+    if (p.exists() or p.is_symlink()) and not force:
         raise UsageError(f"{p} exists; pass --force to overwrite it")
     if p.is_dir():
         raise UsageError(f"--plot {p} is a directory")
@@ -136,6 +142,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise UsageError("give --out RUN_DIR (or --resume RUN_DIR)")
     settings: dict = {}
     if args.config:
+        if not Path(args.config).is_file():
+            raise UsageError(f"cannot read --config {args.config}: not a regular file")
         try:
             settings = tomllib.loads(Path(args.config).read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
@@ -198,13 +206,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from tpo.algo import TPO
 
     run_dir = Path(args.run_dir)
-    if not (run_dir / "model").is_dir() or not os.access(run_dir, os.W_OK):
-        # not a run (load says why), or read-only: no tpo process can change it
+    # Not a run (load says why), or read-only (no tpo process can change it): no lock.
+    locked = (run_dir / "config.toml").is_file() and os.access(run_dir, os.W_OK)
+    with exclusive(run_dir) if locked else contextlib.nullcontext():
         model = TPO.load(run_dir / "model", trust_env_module=args.trust_module)
-    else:
-        with exclusive(run_dir):
-            model = TPO.load(run_dir / "model", trust_env_module=args.trust_module)
-    print(json.dumps(model.evaluate(episodes=args.episodes), indent=2))
+        result = model.evaluate(episodes=args.episodes)
+    print(json.dumps(result, indent=2))
     return 0
 
 
@@ -215,8 +222,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from tpo.experiments.paper import Settings
-    from tpo.experiments.reproduce import reproduce
+    from tpo.experiments.reproduce import check_settings, reproduce
 
+    if not args.out.strip():
+        raise UsageError("--out must name a directory")
     settings = Settings.quick() if args.quick else Settings()
     changes: dict = {}
     if args.map:
@@ -229,8 +238,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             raise UsageError("--slacks needs at least two increasing values >= 0")
         changes["slacks"] = slacks
     if args.seeds is not None:
-        if args.seeds < 1:
-            raise UsageError("--seeds must be at least 1")
+        if not 1 <= args.seeds <= 1000:
+            raise UsageError("--seeds must be from 1 to 1000")
         changes["seeds"] = tuple(range(args.seeds))
     if args.steps is not None:
         changes["steps"] = args.steps
@@ -243,6 +252,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if args.completion:
         changes["completion"] = True
     settings = replace(settings, **changes)
+    check_settings(settings)  # before the progress bar and before anything is made
     with exclusive(args.out, create=True) as out:
         weights = {p.name: len(xs) * len(settings.seeds) * settings.steps
                    for p, xs in settings.jobs()}
@@ -306,7 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
     p.add_argument("--resume", metavar="RUN_DIR",
                    help="continue a run from its last checkpoint (e.g. after a kill)")
-    p.add_argument("--episodes", type=positive_int, default=100, help="Monte Carlo episodes")
+    p.add_argument("--episodes", type=episodes, default=100,
+                   help="Monte Carlo episodes (1 to 1,000,000)")
     p.add_argument("--trust-module", metavar="PACKAGE",
                    help="the package of a Gymnasium env that a saved model names, to "
                         "import on load (tpo imports no module named in a file otherwise)")
@@ -321,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="small budget on the small map (CI): 2 slacks, 2 seeds")
     p.add_argument("--map", help="bundled map or TOML file (default home)")
     p.add_argument("--slacks", help="slack values of the x-axis (default 0,1,2,5,10,20,50,100)")
-    p.add_argument("--seeds", type=int, help="number of seeds (default 5)")
+    p.add_argument("--seeds", type=int, help="number of seeds (default 5; at most 1000)")
     p.add_argument("--steps", type=int, help="env steps per configuration and seed")
     p.add_argument("--workers", type=int, help="worker processes (default 2)")
     p.add_argument("--constraint", choices=CONSTRAINTS,
@@ -334,7 +345,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("eval", help="re-evaluate a saved run directory")
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
-    p.add_argument("--episodes", type=positive_int, default=100, help="Monte Carlo episodes")
+    p.add_argument("--episodes", type=episodes, default=100,
+                   help="Monte Carlo episodes (1 to 1,000,000)")
     p.add_argument("--trust-module", metavar="PACKAGE",
                    help="the package of a Gymnasium env that a saved model names, to "
                         "import on load (tpo imports no module named in a file otherwise)")

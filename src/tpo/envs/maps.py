@@ -114,6 +114,8 @@ def load_map(name_or_path: str | Path) -> NavMap:
         text = (resources.files("tpo.envs") / "maps" / f"{name_or_path}.toml").read_text()
     else:
         path = Path(name_or_path)
+        if path.exists() and not path.is_file():
+            raise MapError(f"map {path} is not a regular file")
         if not path.is_file():
             raise MapError(f"no bundled map or file named '{name_or_path}' "
                            f"(bundled: {', '.join(bundled_maps())})")

@@ -61,9 +61,11 @@ class MetricsLog:
         path = run_dir / "metrics.csv"
         kept = [",".join(self.header)]
         if last_update and path.exists():
-            kept += [row for row in path.read_text().splitlines()[1:]
-                     if row.count(",") == len(self.header) - 1
-                     and int(row.split(",")[0]) <= last_update]
+            # Rows that are not whole rows of this log (a cut-off line, damage) are
+            # dropped; the checkpoint's rows are rewritten as they were.
+            rows = path.read_text(errors="replace").splitlines()[1:]
+            kept += [row for row in rows if row.count(",") == len(self.header) - 1
+                     and row.split(",")[0].isdigit() and int(row.split(",")[0]) <= last_update]
         write_atomic(path, "\n".join(kept) + "\n")
         self.csv = open(path, "a")  # noqa: SIM115 - closed in close()
         self.tb = SummaryWriter(str(run_dir / "tb"), purge_step=last_update * batch_size
