@@ -161,18 +161,22 @@ def _train(args: argparse.Namespace, run_dir: Path, spec: RunSpec, replaced) -> 
 
     from tpo.experiments.runs import train_run
 
-    bar = tqdm(total=spec.steps, unit="step", unit_scale=True, disable=args.quiet)
+    bars = []  # the bar appears with the first trained chunk: an error before is one line
 
     def progress(model, metrics: dict, updates: int) -> None:
-        bar.update(updates * spec.config.batch_size - bar.n)
-        bar.set_postfix(phase=model.phases[int(metrics["phase"][-1])],
-                        ret="/".join(f"{r:.1f}" for r in metrics["episode_return"][-1]))
+        if not bars:
+            bars.append(tqdm(total=spec.steps, unit="step", unit_scale=True,
+                             disable=args.quiet))
+        bars[0].update(updates * spec.config.batch_size - bars[0].n)
+        bars[0].set_postfix(phase=model.phases[int(metrics["phase"][-1])],
+                            ret="/".join(f"{r:.1f}" for r in metrics["episode_return"][-1]))
 
     try:
         result = train_run(run_dir, episodes=args.episodes, progress=progress,
                            replaced=replaced, trust_module=args.trust_module)
     finally:
-        bar.close()
+        for bar in bars:
+            bar.close()
     print_result(result)
     print(f"run written to {run_dir}")
     return 0
