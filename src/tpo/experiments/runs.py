@@ -9,6 +9,7 @@ read::
       checkpoints/update-N/ the whole training state after update N (a saved model)
       model/                the final model (``TPO.load``)
       eval.json             ``mc``, ``exact`` and ``lar`` of :meth:`TPO.evaluate`
+      .tpo.lock             held by the one tpo command working in the run
 
 Every file is written whole and renamed into place (or, for the metrics,
 truncated back to the last checkpoint on resume), so a kill never leaves a
