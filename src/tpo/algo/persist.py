@@ -23,6 +23,7 @@ from flax import serialization
 from tpo.algo.train import TrainState
 from tpo.atomic import write_dir_atomic
 from tpo.errors import TPOError
+from tpo.schema import check_table
 
 FORMAT = 5  # 5: model.json holds the SHA-256 of state.msgpack
 
@@ -81,7 +82,7 @@ def read_model(path: str | Path) -> tuple[dict[str, Any], bytes]:
     try:
         check_meta(meta)
     except TPOError as err:
-        raise TPOError(f"{path}/model.json: {err}") from None
+        raise TPOError(f"{path}: {err}") from None
     if hashlib.sha256(blob).hexdigest() != meta["state_sha256"]:
         raise TPOError(f"{path}/state.msgpack is damaged (its SHA-256 is not the one "
                        "model.json records)")
@@ -100,17 +101,10 @@ def check_meta(meta: dict[str, Any]) -> None:
     the wrong type, of a saved model's ``model.json``."""
     from tpo.envs.spec import check_spec
 
-    unknown = sorted(set(meta) - set(META_KEYS))
-    if unknown:
-        raise TPOError(f"unknown key {unknown[0]!r}")
-    for key, kind in META_KEYS.items():
-        if key not in meta:
-            raise TPOError(f"lacks {key!r}")
-        value = meta[key]
-        if isinstance(value, bool) or not isinstance(value, kind) or (
-                kind is int and value < 0):
-            wanted = "a non-negative integer" if kind is int else f"a {kind.__name__}"
-            raise TPOError(f"{key} must be {wanted}, got {value!r:.60}")
+    check_table(meta, META_KEYS, "model.json")
+    negative = [k for k, kind in META_KEYS.items() if kind is int and meta[k] < 0]
+    if negative:
+        raise TPOError(f"model.json: {negative[0]} must be >= 0, got {meta[negative[0]]}")
     if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in meta["slack"]):
-        raise TPOError("slack must be a list of numbers")
+        raise TPOError("model.json: slack must be a list of numbers")
     check_spec(meta["env"])

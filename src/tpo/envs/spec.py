@@ -19,6 +19,7 @@ from tpo.envs.grid import GridNav
 from tpo.envs.gym_adapter import EnvFactory, HostEnv, env_factory, host_env
 from tpo.envs.maps import load_map, parse_map
 from tpo.errors import MapError, TPOError
+from tpo.schema import Number, check_table
 
 Env = GridNav | ContinuousNav | HostEnv
 
@@ -47,7 +48,6 @@ def make_env(env: Env | str | Path | gym.Env | gym.vector.VectorEnv | EnvFactory
     return GridNav(navmap, random_start=True)
 
 
-Number = int | float
 #: The keys of every env kind's spec and their types (bool is not an int here).
 SPEC_KEYS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "grid": {"map": str, "slip": Number, "observation": str, "max_steps": int,
@@ -61,29 +61,12 @@ SPEC_KEYS: dict[str, dict[str, type | tuple[type, ...]]] = {
 def check_spec(spec: Any) -> None:
     """Raise :class:`TPOError` naming the first thing wrong with an env spec read from
     a file: its kind, a missing or unknown key, a value of the wrong type."""
-    if not isinstance(spec, dict):
-        raise TPOError(f"env spec must be a table, got {type(spec).__name__}")
-    kind = spec.get("kind")
+    kind = spec.get("kind") if isinstance(spec, dict) else None
     if not isinstance(kind, str) or kind not in SPEC_KEYS:
         raise TPOError(f"unknown env kind {kind!r} (known: {', '.join(SPEC_KEYS)})")
-    keys = SPEC_KEYS[kind]
-    unknown = sorted(set(spec) - set(keys) - {"kind"})
-    if unknown:
-        raise TPOError(f"{kind} env spec has unknown key {unknown[0]!r}")
-    for key, kinds in keys.items():
-        if key not in spec:
-            raise TPOError(f"{kind} env spec lacks {key!r}")
-        value = spec[key]
-        if (isinstance(value, bool) and kinds is not bool) or not isinstance(value, kinds):
-            raise TPOError(f"{kind} env spec: {key} must be {_type_name(kinds)}, got "
-                           f"{value!r:.60}")
+    check_table(spec, SPEC_KEYS[kind], f"{kind} env spec", also=("kind",))
     if kind == "gym" and not all(isinstance(o, str) for o in spec["objectives"]):
         raise TPOError("gym env spec: objectives must be a list of names")
-
-
-def _type_name(kinds: type | Any) -> str:
-    return {str: "a string", bool: "true or false", int: "an integer", list: "a list",
-            Number: "a number"}.get(kinds, str(kinds))
 
 
 def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int = 1,
