@@ -127,6 +127,7 @@ def test_train_refuses_to_replace_a_run_and_rejects_bad_config(tmp_path, capsys)
     assert main(["train", "--map", "small", "--steps", "20000", "--out", str(out)]) == 2
     assert "exists; pass --force to replace it or --resume" in capsys.readouterr().err
     assert (out / "keep.txt").read_text() == "mine"
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]  # no lock file left behind
     bad = tmp_path / "bad.toml"
     bad.write_text("learning_rate = -1\n")
     assert main(["train", "--config", str(bad), "--out", str(tmp_path / "x")]) == 2
