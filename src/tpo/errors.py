@@ -24,6 +24,10 @@ class MapError(TPOError):
     """A malformed navigation map."""
 
 
+class DamagedModel(TPOError):
+    """A saved model (or checkpoint) whose files cannot be read or fail their checks."""
+
+
 class InfeasibleError(TPOError):
     """LAR found states where an objective has no admissible action.
 

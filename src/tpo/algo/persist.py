@@ -22,7 +22,7 @@ from flax import serialization
 
 from tpo.algo.train import TrainState
 from tpo.atomic import write_dir_atomic
-from tpo.errors import TPOError
+from tpo.errors import DamagedModel, TPOError
 from tpo.schema import check_table
 
 FORMAT = 5  # 5: model.json holds the SHA-256 of state.msgpack
@@ -74,7 +74,7 @@ def read_model(path: str | Path) -> tuple[dict[str, Any], bytes]:
         meta = json.loads((path / "model.json").read_text(encoding="utf-8"))
         blob = (path / "state.msgpack").read_bytes()
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise TPOError(f"{path} is not a saved tpo model: {err}") from None
+        raise DamagedModel(f"{path} is not a saved tpo model: {err}") from None
     found = meta.get("format") if isinstance(meta, dict) else None
     if found != FORMAT:
         raise TPOError(f"{path}: unknown model format {found!r} "
@@ -84,7 +84,7 @@ def read_model(path: str | Path) -> tuple[dict[str, Any], bytes]:
     except TPOError as err:
         raise TPOError(f"{path}: {err}") from None
     if hashlib.sha256(blob).hexdigest() != meta["state_sha256"]:
-        raise TPOError(f"{path}/state.msgpack is damaged (its SHA-256 is not the one "
+        raise DamagedModel(f"{path}/state.msgpack is damaged (its SHA-256 is not the one "
                        "model.json records)")
     return meta, blob
 

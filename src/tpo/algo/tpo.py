@@ -23,7 +23,7 @@ from tpo.algo.runners import HostRunner, Runner, jax_runner
 from tpo.algo.train import Trainer, TrainState
 from tpo.envs.gym_adapter import EnvFactory, HostEnv
 from tpo.envs.spec import Env, from_spec, make_env
-from tpo.errors import TPOError
+from tpo.errors import DamagedModel, TPOError
 from tpo.graph import ObjectiveGraph
 
 Callback = Callable[[dict[str, np.ndarray], int], bool | None]
@@ -221,7 +221,7 @@ class TPO:
         try:
             model.state = restore_state(template, blob)[0]
         except ValueError as err:
-            raise TPOError(f"{path}/state.msgpack is damaged or does not match "
+            raise DamagedModel(f"{path}/state.msgpack is damaged or does not match "
                            f"model.json: {err}") from None
         model.num_timesteps = meta["num_timesteps"]
         return model

@@ -283,6 +283,16 @@ class OneLineParser(argparse.ArgumentParser):
         raise UsageError(f"{message} (see '{self.prog} --help')")
 
 
+def add_loading_options(p: argparse.ArgumentParser) -> None:
+    """What ``train`` and ``eval`` share: the evaluation's episodes, and the one
+    package a saved model may import."""
+    p.add_argument("--episodes", type=episodes, default=100,
+                   help="Monte Carlo episodes (1 to 1,000,000)")
+    p.add_argument("--trust-module", metavar="PACKAGE",
+                   help="the package of a Gymnasium env that a saved model names, to "
+                        "import on load (tpo imports no module named in a file otherwise)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="tpo", description="Multi-objective RL with prioritised, slack-tolerant objectives.")
@@ -320,11 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
     p.add_argument("--resume", metavar="RUN_DIR",
                    help="continue a run from its last checkpoint (e.g. after a kill)")
-    p.add_argument("--episodes", type=episodes, default=100,
-                   help="Monte Carlo episodes (1 to 1,000,000)")
-    p.add_argument("--trust-module", metavar="PACKAGE",
-                   help="the package of a Gymnasium env that a saved model names, to "
-                        "import on load (tpo imports no module named in a file otherwise)")
+    add_loading_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_fields(p, RunSpec, "problem and budget", skip={"config"})
     add_fields(p, TPOConfig, "hyperparameters (TPOConfig)")
@@ -349,11 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("eval", help="re-evaluate a saved run directory")
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
-    p.add_argument("--episodes", type=episodes, default=100,
-                   help="Monte Carlo episodes (1 to 1,000,000)")
-    p.add_argument("--trust-module", metavar="PACKAGE",
-                   help="the package of a Gymnasium env that a saved model names, to "
-                        "import on load (tpo imports no module named in a file otherwise)")
+    add_loading_options(p)
     p.set_defaults(handler=cmd_eval)
     return parser
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from tpo.algo import TPO
 from tpo.atomic import write_atomic
-from tpo.errors import TPOError
+from tpo.errors import DamagedModel, TPOError
 from tpo.experiments.runspec import RunError, RunSpec
 from tpo.locking import LOCK_FILE
 
@@ -103,7 +103,6 @@ def checkpoints(run_dir: Path) -> list[Path]:
     return sorted(found, key=lambda p: int(p.name.split("-")[1]))
 
 
-RUN_ENTRIES = ("config.toml", "metrics.csv", "tb", "checkpoints", "model", "eval.json")
 
 
 def check_replaceable(out: Path) -> None:
@@ -250,9 +249,7 @@ def _newest_good(saved: list[Path], trust_module: str | None) -> TPO:
     for path in reversed(saved):
         try:
             return TPO.load(path, trust_module)
-        except TPOError as err:
-            if "is damaged" not in str(err) and "is not a saved tpo model" not in str(err):
-                raise
+        except DamagedModel as err:
             print(f"tpo: warning: skipping checkpoint {path.name}: {err}", file=sys.stderr)
     raise RunError(f"every checkpoint of {saved[0].parent.parent} is damaged; train it "
                    "again with --force")
