@@ -8,7 +8,7 @@ import pytest
 from tpo.algo.config import ConfigError, TPOConfig
 from tpo.algo.networks import scale_output
 from tpo.algo.phases import Problem
-from tpo.algo.train import Trainer
+from tpo.algo.train import Rollout, Trainer
 from tpo.envs import OBJECTIVES, load_map
 from tpo.envs.grid import GridNav
 from tpo.experiments.sweep import run_sweep
@@ -104,6 +104,33 @@ def test_restricted_rollouts_act_within_the_admissible_actions(small):
     assert not taken[explore].all()
     assert 0 < allowed.mean() < 1  # the avoid critic excludes some actions
     assert explore.mean() == pytest.approx(0.25, abs=0.05)
+
+
+@pytest.mark.parametrize(("slack", "gap", "penalty"), [
+    (1.0, 0.8, 0.1),  # the margin: 0.15 x avoid's reward range 2 = 0.3 below the slack
+    (1.0, 0.6, 0.0),
+    (0.4, 0.3, 0.1),  # at most half the slack
+    (0.0, 0.25, 0.25),  # no margin at slack 0
+    (100.0, 99.8, 0.1)])
+def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, penalty):
+    """A goal-phase transition whose one-step avoid advantage is ``-gap``: its penalty
+    is ``max(0, gap - (slack - min(0.3, slack / 2)))``."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("A>G", slack, objectives=OBJECTIVES)
+    trainer = Trainer(train_env, graph, TPOConfig(num_envs=1, num_steps=1, num_minibatches=1),
+                      2)
+    state = trainer.init(jax.random.key(0))
+    obs = state.obs[None]  # [T=1, E=1, D]
+    v_avoid = float(trainer.values(state, obs)[0, 0, 0, 0])  # head 0: avoid
+    reward = np.zeros((1, 1, len(OBJECTIVES)), np.float32)
+    # s' = s: the one-step advantage is r - (1 - gamma) V(s)
+    reward[..., OBJECTIVES.index("avoid")] = -gap + (1 - 0.99) * v_avoid
+    zeros = jnp.zeros((1, 1))
+    rollout = Rollout(obs, jnp.zeros((1, 1), jnp.int32), zeros, jnp.asarray(reward), obs,
+                      zeros, zeros, None, zeros)
+    _, found, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
+                                             jnp.int32(1))
+    assert float(found[0, 0]) == pytest.approx(penalty, abs=1e-4)
 
 
 def test_seeds_and_slacks_vmap_in_one_compiled_run(small):

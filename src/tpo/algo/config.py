@@ -72,6 +72,11 @@ class TPOConfig:
     """restriction: an action is admissible when its violation of an edge is at most
     the slack plus this share of the parent objective's one-step reward range; the
     penalty form allows the completion constraints (zero slack) the same margin"""
+    margin: float = 0.15
+    """penalty: a constraint is penalised from its slack less this share of the parent
+    objective's one-step reward range (at most half the slack): the learned critics
+    cannot tell an action that LAR barely admits from one it excludes, and the
+    margin keeps the policy on the safe side (docs/notes/tpo-learning.md)"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of
@@ -124,6 +129,7 @@ class TPOConfig:
                               f"{self.beta!r}")
         _positive("carry_temperature", self.carry_temperature)
         _nonnegative("tolerance", self.tolerance)
+        _nonnegative("margin", self.margin)
         _nonnegative("explore", self.explore)
         if self.explore >= 1:
             raise ConfigError(f"explore must be in [0, 1), got {self.explore!r}")

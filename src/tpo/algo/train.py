@@ -122,9 +122,11 @@ class Trainer:
                                      env.reward_high)
         #: each constraint's tolerance, a share of its parent's reward range (restriction:
         #: every constraint; penalty: the completion constraints, at zero slack)
-        parents = self.problem.reward[self.problem.head]
-        self.tolerance = (config.tolerance * reward_ranges(env.reward_low, env.reward_high)
-                          [parents]).astype(np.float32)
+        ranges = reward_ranges(env.reward_low, env.reward_high)[
+            self.problem.reward[self.problem.head]]
+        self.tolerance = (config.tolerance * ranges).astype(np.float32)
+        #: penalty form: each constraint's margin below its slack (capped at half the slack)
+        self.margin = (config.margin * ranges).astype(np.float32)
         self.actor = Actor.for_space(space, config.hidden, config.activation)
         n_out = 1 + int(space.n) if self.restricts else 1
         self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation)
@@ -339,7 +341,8 @@ class Trainer:
         """The phase's advantages and critic targets, the penalty of every transition
         ``[T, E]`` and the value statistics with the new targets folded in.
 
-        Penalty form: Eq. 10 with the frozen ancestral critics' one-step violations.
+        Penalty form: Eq. 10 with the frozen ancestral critics' one-step violations,
+        counted from each slack less its ``margin``.
         Restriction form: no penalty (the policy acts only within the admissible
         actions); the advantage outputs ``Q_h(s, a) - V_h(s)`` of the phase's head
         and of every earlier head ``h`` learn the one-step advantages
@@ -361,8 +364,10 @@ class Trainer:
             q_target = adv_all
         else:
             completion = jnp.asarray(prob.slack_index == len(prob.graph.edges), jnp.float32)
-            c = violations(adv_all, jnp.asarray(prob.head), prob.constraint_slacks(slack)
-                           + completion * jnp.asarray(self.tolerance))
+            slacks = prob.constraint_slacks(slack)
+            margin = jnp.minimum(jnp.asarray(self.margin), slacks / 2)
+            c = violations(adv_all, jnp.asarray(prob.head),
+                           slacks - margin + completion * jnp.asarray(self.tolerance))
             penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
             q_target = None
         # An exploring step cuts the trace of the policy's returns before it.
