@@ -12,6 +12,7 @@ from tpo.envs import grid_model, load_map
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
 from tpo.experiments.paper import PANELS, direction
+from tpo.experiments.report import results_csv, verdict_table
 from tpo.experiments.sweep import run_sweep
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar
@@ -30,6 +31,34 @@ def test_direction_is_flat_within_one_percent_of_the_scale():
     assert direction(88.6, 0.0, 88.6) == "down"
     assert direction(-100.0, -99.2, 100.0) == "flat"
     assert direction(0.0, 0.4, 1.0) == "flat"
+
+
+def _record(dag, correct, feasible):
+    """A panel record of 2 slacks x 2 seeds whose verdicts are ``correct`` (also strict;
+    same values on seed 0 only)."""
+    return {"panel": {"dag": dag}, "x": [0.0, 5.0], "slacks": [[0.0], [5.0]], "seeds": [0, 1],
+            "objectives": ["goal"], "exact": [[[-1.0], [-2.0]], [[-3.0], [-4.0]]],
+            "mc": [[[0.0], [0.0]], [[0.0], [0.0]]], "lar": [[-1.0], [-3.0]],
+            "feasible": feasible, "lar_correct": correct, "strict": correct,
+            "same_values": [[True, False], [True, False]]}
+
+
+def test_verdict_table_counts_each_form_over_its_feasible_runs():
+    records = {"penalty": {"a": _record("A>G", [[True, True], [True, False]], [True, True]),
+                           "b": _record("G>A", [[False, False], [True, True]], [False, True])},
+               "restriction": {"a": _record("A>G", [[False, True], [False, False]],
+                                            [True, True]),
+                               "b": _record("G>A", [[True, True], [False, False]],
+                                            [False, True])}}
+    rows = verdict_table(records).splitlines()
+    assert rows[2:] == ["| (a) A>G | 3/4 / 3/4 / 2/4 | 1/4 / 1/4 / 2/4 |",
+                        "| (b) G>A | 2/2 / 2/2 / 1/2 | 0/2 / 0/2 / 1/2 |",
+                        "| **all feasible runs** | 5/6 / 5/6 / 3/6 | 1/6 / 1/6 / 3/6 |"]
+    csv_rows = results_csv(records).splitlines()
+    assert len(csv_rows) == 1 + 2 * 2 * 2 * 2  # forms x panels x slacks x seeds
+    assert csv_rows[1] == ("penalty,a,A>G,0.0,0,0,goal,-1.000000,0.000000,-1.000000,"
+                           "True,True,True,True")
+    assert csv_rows[-1].startswith("restriction,b,G>A,5.0,5,1,goal,-4.000000,")
 
 
 class Interrupt(Exception):
@@ -67,17 +96,34 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     out = tmp_path / "repro"
     assert main(["reproduce", "--quick", "--out", str(out), "--quiet"]) == 0
     names = {p.name for p in out.iterdir()}
-    assert {"figure2.png", "figure3.png", "results.csv", "results.json", "report.md",
-            "settings.json", "panels"} <= names
-    for png in ("figure2.png", "figure3.png"):
+    pngs = {f"figure{n}-{form}.png" for n in (2, 3) for form in ("penalty", "restriction")}
+    assert pngs | {"results.csv", "results.json", "report.md", "settings.json",
+                   "panels"} <= names
+    for png in pngs:
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
-    rows = (out / "results.csv").read_text().strip().splitlines()
-    assert len(rows) == 1 + 5 * 2 * 2 * 3  # (4 panels + figure 3) x 2 slacks x 2 seeds x 3
-    assert rows[0].endswith(",lar_feasible,lar_correct,strict,same_values")
+    rows = [r.split(",") for r in (out / "results.csv").read_text().strip().splitlines()]
+    # 2 forms x (4 panels + figure 3) x 2 slacks x 2 seeds x 3 objectives
+    assert len(rows) == 1 + 2 * 5 * 2 * 2 * 3
+    assert rows[0][:2] == ["form", "panel"]
+    assert rows[0][-4:] == ["lar_feasible", "lar_correct", "strict", "same_values"]
+    # The forms ran on the same seeds, slacks and objectives, row for row.
+    penalty = [r[1:7] for r in rows[1:] if r[0] == "penalty"]
+    assert penalty == [r[1:7] for r in rows[1:] if r[0] == "restriction"]
     report = (out / "report.md").read_text()
-    assert report.count("| (a) M>A>G |") == 3 and report.count("| (d) A>G, M>G |") == 3
+    # The verdicts side by side: one row per panel (and the total), one column per form.
+    table = report.split("\n\n")[2].splitlines()
+    assert table[0] == ("| panel | penalty: LAR-correct / strict / same values | "
+                        "restriction: LAR-correct / strict / same values |")
+    assert [row.split(" | ")[0] for row in table[2:]] == [
+        "| (a) M>A>G", "| (b) A>M>G", "| (c) G>M>A", "| (d) A>G, M>G", "| (fig3) M>A>G",
+        "| **all feasible runs**"]
+    assert report.count("| (a) M>A>G | avoid |") == 1  # directions: both forms in a row
+    assert report.count("| (a) M>A>G | ") == 1 + 3
+    assert report.count(": restriction form") == report.count(": penalty form") == 4
     # LAR's line in the results is the exact solver's, e.g. panel (b) at slack (0, 100).
-    record = json.loads((out / "results.json").read_text())["panels"]["b"]
+    results = json.loads((out / "results.json").read_text())["forms"]
+    record = results["penalty"]["b"]
+    assert results["restriction"]["b"]["lar"] == record["lar"]
     grid = grid_model(load_map("small"), gamma=0.99)
     lar = solve_lar(grid.model, ObjectiveGraph.parse("A>M>G", [0, 100],
                                                      objectives=grid.model.objectives),
@@ -96,8 +142,9 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--seeds", "3", "--out", str(out), "--quiet"]) == 2
     assert "holds a reproduction with other settings" in capsys.readouterr().err
-    # the other form of the constraint is another reproduction, in its own directory
+    # one form alone is another reproduction, in its own directory
     assert main(["reproduce", "--quick", "--constraint", "restriction", "--out", str(out),
                  "--quiet"]) == 2
-    assert "'constraint': 'penalty'" in capsys.readouterr().err
-    assert json.loads((out / "settings.json").read_text())["constraint"] == "penalty"
+    assert "'forms': ['penalty', 'restriction']" in capsys.readouterr().err
+    assert json.loads((out / "settings.json").read_text())["forms"] == ["penalty",
+                                                                         "restriction"]

@@ -225,7 +225,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from tpo.experiments.paper import Settings
+    from tpo.experiments.paper import Settings, job_name
     from tpo.experiments.reproduce import check_settings, reproduce
 
     if not args.out.strip():
@@ -252,14 +252,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             raise UsageError("--workers must be at least 1")
         changes["workers"] = args.workers
     if args.constraint is not None:
-        changes["constraint"] = args.constraint
+        changes["forms"] = (args.constraint,)
     if args.completion:
         changes["completion"] = True
     settings = replace(settings, **changes)
     check_settings(settings)  # before the progress bar and before anything is made
     with exclusive(args.out, create=True) as out:
-        weights = {p.name: len(xs) * len(settings.seeds) * settings.steps
-                   for p, xs in settings.jobs()}
+        weights = {job_name(f, p): len(xs) * len(settings.seeds) * settings.steps
+                   for f, p, xs in settings.jobs()}
         bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True,
                    disable=args.quiet, desc="reproduce")
         t0 = time.monotonic()
@@ -346,8 +346,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, help="env steps per configuration and seed")
     p.add_argument("--workers", type=int, help="worker processes (default 2)")
     p.add_argument("--constraint", choices=CONSTRAINTS,
-                   help="the form every run keeps the slacks in (default penalty, the "
-                        "paper's); run each form into its own --out to compare them")
+                   help="run one form of the constraint only (default: both, side by side "
+                        "on the same seeds)")
     p.add_argument("--completion", action="store_true",
                    help="completion phases after the leaf (docs/design.md §5)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

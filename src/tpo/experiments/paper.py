@@ -34,6 +34,9 @@ PAPER = {"a": {"avoid": (-133.65, -311.16), "monitor": (-114.47, -310.06),
                "goal": (-957.6, -957.46)},
          "d": {"avoid": (-251.67, -519.57), "monitor": (-185.26, -509.55),
                "goal": (-769.72, -670.23)}}
+# The forms of the constraint, side by side on the same seeds (TPOConfig.constraint): the
+# paper's penalty first.
+FORMS = ("penalty", "restriction")
 FIGURE3 = Panel("fig3", "M>A>G", (0,), r"$\eta_1$")  # slack (0, 0) and (100, 0)
 FIGURE3_SLACKS = (0.0, 100.0)
 
@@ -47,7 +50,7 @@ class Settings:
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
     steps: int = 1_500_000
     workers: int = 2
-    constraint: str = "penalty"  # TPOConfig.constraint: the form every run learns with
+    forms: tuple[str, ...] = FORMS  # TPOConfig.constraint: every panel runs in each form
     completion: bool = False  # TPOConfig.completion
 
     @classmethod
@@ -55,10 +58,19 @@ class Settings:
         """A small budget that runs end to end in CI (about two minutes)."""
         return cls(map="small", slacks=(0, 100), seeds=(0, 1), steps=300_000)
 
-    def jobs(self) -> list[tuple[Panel, list[float]]]:
+    def panels(self) -> list[tuple[Panel, list[float]]]:
         """Every panel with its x-axis slack values, Figure 3 last."""
         return [*[(p, [float(x) for x in self.slacks]) for p in PANELS],
                 (FIGURE3, list(FIGURE3_SLACKS))]
+
+    def jobs(self) -> list[tuple[str, Panel, list[float]]]:
+        """Every form's panels (:meth:`panels`), the forms in order."""
+        return [(form, p, xs) for form in self.forms for p, xs in self.panels()]
+
+
+def job_name(form: str, panel: Panel) -> str:
+    """A panel of one form: its progress key and its file name in ``OUT/panels``."""
+    return f"{form}-{panel.name}"
 
 
 def direction(start: float, end: float, scale: float) -> str:

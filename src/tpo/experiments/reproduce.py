@@ -1,18 +1,21 @@
 """The paper's experiments (§V): Figure 2 (four DAGs × a slack sweep) and Figure 3
 (the robot's paths on the household map), by one call or ``tpo reproduce``.
 
-Each panel is one :func:`~tpo.experiments.sweep.run_sweep`: every slack × seed of
-its DAG trains as one compiled program. Panels run in a worker pool
-(:mod:`tpo.experiments.pool`) and each finished panel is saved to
-``OUT/panels/NAME.json`` at once, so a killed run restarts where it was (a panel
-in progress resumes from its checkpoint). Output (:mod:`tpo.experiments.report`)::
+Every panel runs in each form of the constraint (``Settings.forms``: the paper's
+penalty and the restriction, on the same seeds). A panel of one form is one
+:func:`~tpo.experiments.sweep.run_sweep`: every slack × seed of its DAG trains as
+one compiled program. Panels run in a worker pool (:mod:`tpo.experiments.pool`)
+and each finished panel is saved to ``OUT/panels/FORM-NAME.json`` at once, so a
+killed run restarts where it was (a panel in progress resumes from its
+checkpoint). Output (:mod:`tpo.experiments.report`)::
 
-    OUT/figure2.png   four panels like the paper's: V_avoid red, V_monitor blue,
-                      V_goal green against slack; seed spread shaded; LAR dashed
-    OUT/figure3.png   the learned M>A>G paths at slack (0, 0) and (100, 0)
-    OUT/results.csv   one row per panel, slack, seed and objective
-    OUT/results.json  the same, nested, with the settings
-    OUT/report.md     a table per panel and each line's direction beside the paper's
+    OUT/figure2-FORM.png  four panels like the paper's: V_avoid red, V_monitor blue,
+                          V_goal green against slack; seed spread shaded; LAR dashed
+    OUT/figure3-FORM.png  the learned M>A>G paths at slack (0, 0) and (100, 0)
+    OUT/results.csv       one row per form, panel, slack, seed and objective
+    OUT/results.json      the same, nested, with the settings
+    OUT/report.md         the verdicts of the forms side by side, a table per panel,
+                          and each line's direction beside the paper's
 """
 
 from __future__ import annotations
@@ -27,38 +30,40 @@ from typing import TYPE_CHECKING, Any
 from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
-from tpo.experiments.paper import Panel, Settings
+from tpo.experiments.paper import Panel, Settings, job_name
 
 if TYPE_CHECKING:
     from tpo.algo import TPOConfig
     from tpo.envs.grid import GridNav
 from tpo.experiments.pool import report_progress, run_jobs
-from tpo.experiments.report import VERDICTS, directions, write_outputs
+from tpo.experiments.report import VERDICTS, directions, verdict_table, write_outputs
 
 
 @dataclass(frozen=True)
 class Reproduction:
-    """What :func:`reproduce` made: the panel records (in panel order) and where."""
+    """What :func:`reproduce` made: the panel records of every form (forms and panels
+    in order) and where."""
 
     out: Path
-    records: dict[str, dict[str, Any]]
+    records: dict[str, dict[str, dict[str, Any]]]  # {form: {panel: record}}
 
     def summary(self) -> str:
-        """The direction of each line beside the paper's, and the time it took."""
-        seconds = sum(r["seconds"] for r in self.records.values())
-        return (f"{directions(self.records)}\n\nfigures, tables and report in {self.out} "
-                f"({seconds:.0f} s of panel time)")
+        """The verdicts of the forms side by side, the direction of each line beside
+        the paper's, and the time it took."""
+        seconds = sum(r["seconds"] for form in self.records.values() for r in form.values())
+        return (f"{verdict_table(self.records)}\n\n{directions(self.records)}\n\n"
+                f"figures, tables and report in {self.out} ({seconds:.0f} s of panel time)")
 
 
-def panel_problem(panel: Panel, xs: list[float], settings: Settings
+def panel_problem(form: str, panel: Panel, xs: list[float], settings: Settings
                   ) -> tuple[GridNav, TPOConfig, list[list[float]]]:
-    """The training env, the config and every run's slacks of one panel."""
+    """The training env, the config and every run's slacks of one panel in ``form``."""
     from tpo.algo import TPOConfig
     from tpo.envs.grid import GridNav
     from tpo.graph import ObjectiveGraph
 
     env = GridNav(load_map(settings.map), random_start=True)
-    config = TPOConfig(constraint=settings.constraint, completion=settings.completion)
+    config = TPOConfig(constraint=form, completion=settings.completion)
     n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0, objectives=OBJECTIVES).edges)
     return env, config, [panel.slack(x, n_edges) for x in xs]
 
@@ -69,33 +74,35 @@ def check_settings(settings: Settings) -> None:
     from tpo.algo import Trainer
     from tpo.graph import ObjectiveGraph
 
-    for panel, xs in settings.jobs():
-        env, config, slacks = panel_problem(panel, xs, settings)
+    for form, panel, xs in settings.jobs():
+        env, config, slacks = panel_problem(form, panel, xs, settings)
         graph = ObjectiveGraph.parse(panel.dag, slacks[0], objectives=env.objectives)
         Trainer(env, graph, config, settings.steps)
 
 
-def run_panel(panel: Panel, xs: list[float], settings: Settings, out: Path
+def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, out: Path
               ) -> dict[str, Any]:
-    """Train and evaluate one panel (in a worker process); write its JSON."""
+    """Train and evaluate one panel in ``form`` (in a worker process); write its JSON."""
     from tpo.experiments.sweep import run_sweep
 
-    env, config, slacks = panel_problem(panel, xs, settings)
+    env, config, slacks = panel_problem(form, panel, xs, settings)
+    name = job_name(form, panel)
     t0 = time.monotonic()
     result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps,
-                       progress=lambda done, total: report_progress(panel.name, done / total),
-                       checkpoint=out / "panels" / f"{panel.name}.ckpt")
+                       progress=lambda done, total: report_progress(name, done / total),
+                       checkpoint=out / "panels" / f"{name}.ckpt")
     grid = env.tabular(config.gamma)
     paths = [[grid.rollout(pi).tolist() for pi in row] for row in result.policies]
-    record = {"panel": asdict(panel), "x": xs, "slacks": slacks, "seeds": list(settings.seeds),
+    record = {"form": form, "panel": asdict(panel), "x": xs, "slacks": slacks,
+              "seeds": list(settings.seeds),
               "objectives": list(result.objectives), "exact": result.exact.tolist(),
               "mc": result.mc.tolist(), "lar": result.lar.tolist(),
               "feasible": result.feasible.tolist(),
               **{k: getattr(result, k).tolist() for k in VERDICTS},
               "paths": paths, "seconds": time.monotonic() - t0,
               "runs": len(slacks) * len(settings.seeds)}
-    write_atomic(out / "panels" / f"{panel.name}.json", json.dumps(record))
-    (out / "panels" / f"{panel.name}.ckpt").unlink(missing_ok=True)
+    write_atomic(out / "panels" / f"{name}.json", json.dumps(record))
+    (out / "panels" / f"{name}.ckpt").unlink(missing_ok=True)
     return record
 
 
@@ -108,7 +115,8 @@ def reproduce(out: str | Path, settings: Settings | None = None,
 
     A directory holding another reproduction's settings is refused; panels
     already in ``out/panels`` are skipped. ``progress({panel: fraction})`` is
-    called as panels advance. ``settings`` default to the paper's (:class:`Settings`).
+    called as panels advance (keys: :func:`~tpo.experiments.paper.job_name`).
+    ``settings`` default to the paper's (:class:`Settings`).
     """
     settings = settings or Settings()
     check_settings(settings)
@@ -124,15 +132,17 @@ def reproduce(out: str | Path, settings: Settings | None = None,
                            "choose another --out")
     else:
         write_atomic(settings_file, json.dumps(mine))
-    records: dict[str, dict[str, Any]] = {}
+    found: dict[str, dict[str, Any]] = {}
     todo = []
-    for panel, xs in settings.jobs():
-        done = out / "panels" / f"{panel.name}.json"
+    for form, panel, xs in settings.jobs():
+        name = job_name(form, panel)
+        done = out / "panels" / f"{name}.json"
         if done.exists():
-            records[panel.name] = json.loads(done.read_text())
+            found[name] = json.loads(done.read_text())
         else:
-            todo.append((panel.name, (panel, xs, settings, out)))
-    fractions = {p.name: 1.0 if p.name in records else 0.0 for p, _ in settings.jobs()}
+            todo.append((name, (form, panel, xs, settings, out)))
+    fractions = {job_name(f, p): 1.0 if job_name(f, p) in found else 0.0
+                 for f, p, _ in settings.jobs()}
 
     def advance(name: str, fraction: float) -> None:
         if fraction > fractions[name]:  # a late report never moves a panel back
@@ -140,7 +150,8 @@ def reproduce(out: str | Path, settings: Settings | None = None,
             if progress is not None:
                 progress(dict(fractions))
 
-    records.update(run_jobs(run_panel, todo, settings.workers, advance))
-    records = {p.name: records[p.name] for p, _ in settings.jobs()}  # panel order
+    found.update(run_jobs(run_panel, todo, settings.workers, advance))
+    records = {form: {p.name: found[job_name(form, p)] for p, _ in settings.panels()}
+               for form in settings.forms}
     write_outputs(out, settings, records)
     return Reproduction(out, records)
