@@ -7,17 +7,23 @@ import pytest
 from flax import serialization
 
 from tpo.algo import TPOConfig
+from tpo.algo.config import CONSTRAINTS
 from tpo.cli.main import main
 from tpo.envs import grid_model, load_map
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
-from tpo.experiments.paper import PANELS, direction
+from tpo.experiments.paper import FORMS, PANELS, Settings, direction
 from tpo.experiments.report import results_csv, verdict_table
+from tpo.experiments.reproduce import check_settings, reproduce
 from tpo.experiments.sweep import run_sweep
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar
 
 TINY = TPOConfig(num_envs=8, num_steps=32)
+
+
+def test_the_reproduction_runs_every_form_of_the_learner():
+    assert sorted(FORMS) == sorted(CONSTRAINTS) and FORMS[0] == TPOConfig().constraint
 
 
 def test_panels_sweep_the_edges_the_paper_names():
@@ -43,7 +49,7 @@ def _record(dag, correct, feasible):
             "same_values": [[True, False], [True, False]]}
 
 
-def test_verdict_table_counts_each_form_over_its_feasible_runs():
+def test_verdict_table_and_csv_count_each_form_over_its_feasible_runs():
     records = {"penalty": {"a": _record("A>G", [[True, True], [True, False]], [True, True]),
                            "b": _record("G>A", [[False, False], [True, True]], [False, True])},
                "restriction": {"a": _record("A>G", [[False, True], [False, False]],
@@ -59,6 +65,37 @@ def test_verdict_table_counts_each_form_over_its_feasible_runs():
     assert csv_rows[1] == ("penalty,a,A>G,0.0,0,0,goal,-1.000000,0.000000,-1.000000,"
                            "True,True,True,True")
     assert csv_rows[-1].startswith("restriction,b,G>A,5.0,5,1,goal,-4.000000,")
+
+
+@pytest.mark.parametrize("forms", [(), ("penalty", "penalty"), ("bogus",), "penalty"])
+def test_bad_forms_are_one_line(forms):
+    with pytest.raises(TPOError, match=r"^forms must be distinct names from "
+                                       r"restriction, penalty, got .*$"):
+        check_settings(Settings(forms=forms))
+
+
+def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path, monkeypatch):
+    """Finished panels are found by form and panel; the rest is queued, and the
+    progress starts where the directory is."""
+    settings = Settings.quick()
+    out = tmp_path / "repro"
+    queued, seen = [], []
+
+    def fake_jobs(fn, jobs, workers, progress):
+        queued.extend(name for name, _ in jobs)
+        return {name: {"form": args[1], "panel": args[2].name} for name, args in jobs}
+
+    monkeypatch.setattr("tpo.experiments.reproduce.run_jobs", fake_jobs)
+    monkeypatch.setattr("tpo.experiments.reproduce.write_outputs", lambda *a: None)
+    (out / "panels").mkdir(parents=True)
+    (out / "panels" / "restriction-b.json").write_text(json.dumps({"mine": True}))
+    result = reproduce(out, settings, seen.append)
+    assert queued == [f"{f}-{p}" for f in FORMS for p in ("a", "b", "c", "d", "fig3")
+                      if (f, p) != ("restriction", "b")]
+    assert seen == [{name: float(name == "restriction-b") for name, *_ in settings.jobs()}]
+    assert list(result.records) == list(FORMS)
+    assert result.records["restriction"]["b"] == {"mine": True}
+    assert result.records["penalty"]["fig3"] == {"form": "penalty", "panel": "fig3"}
 
 
 class Interrupt(Exception):
@@ -111,9 +148,9 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     assert penalty == [r[1:7] for r in rows[1:] if r[0] == "restriction"]
     report = (out / "report.md").read_text()
     # The verdicts side by side: one row per panel (and the total), one column per form.
-    table = report.split("\n\n")[2].splitlines()
-    assert table[0] == ("| panel | penalty: LAR-correct / strict / same values | "
-                        "restriction: LAR-correct / strict / same values |")
+    header = ("| panel | penalty: LAR-correct / strict / same values | "
+              "restriction: LAR-correct / strict / same values |")
+    table = report[report.index(header):].split("\n\n")[0].splitlines()
     assert [row.split(" | ")[0] for row in table[2:]] == [
         "| (a) M>A>G", "| (b) A>M>G", "| (c) G>M>A", "| (d) A>G, M>G", "| (fig3) M>A>G",
         "| **all feasible runs**"]
@@ -122,6 +159,9 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     assert report.count(": restriction form") == report.count(": penalty form") == 4
     # LAR's line in the results is the exact solver's, e.g. panel (b) at slack (0, 100).
     results = json.loads((out / "results.json").read_text())["forms"]
+    assert {(form, name, rec["form"], rec["panel"]["name"]) for form, panels in results.items()
+            for name, rec in panels.items()} == {
+        (form, name, form, name) for form in FORMS for name in ("a", "b", "c", "d", "fig3")}
     record = results["penalty"]["b"]
     assert results["restriction"]["b"]["lar"] == record["lar"]
     grid = grid_model(load_map("small"), gamma=0.99)
@@ -145,6 +185,7 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     # one form alone is another reproduction, in its own directory
     assert main(["reproduce", "--quick", "--constraint", "restriction", "--out", str(out),
                  "--quiet"]) == 2
-    assert "'forms': ['penalty', 'restriction']" in capsys.readouterr().err
+    assert "other settings (in forms, learners: see its settings.json)" in \
+        capsys.readouterr().err
     assert json.loads((out / "settings.json").read_text())["forms"] == ["penalty",
                                                                          "restriction"]

@@ -37,6 +37,18 @@ def test_save_and_load_give_the_same_policy(model, tmp_path):
     assert loaded.evaluate(episodes=4)["exact"] == model.evaluate(episodes=4)["exact"]
 
 
+def test_a_model_saved_before_the_margin_existed_loads_without_it(model, tmp_path):
+    """tpo 0.2 penalised from the slack itself: its saved models keep doing so, and a
+    new config without the key gets today's default."""
+    assert model.config.margin == 0.15
+    path = model.save(tmp_path / "run")
+    meta = json.loads((path / "model.json").read_text())
+    del meta["config"]["margin"]
+    (path / "model.json").write_text(json.dumps(meta))
+    assert TPO.load(path).config.margin == 0.0
+    assert TPOConfig.from_dict({}).margin == 0.15
+
+
 def test_a_restricted_model_acts_within_its_last_phase_and_round_trips(tmp_path):
     model = TPO("small", "A>G", slack=0, config=RESTRICTED, seed=2).learn(3 * 8 * 32 * 3)
     trainer = model.trainer

@@ -126,11 +126,13 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
     # s' = s: the one-step advantage is r - (1 - gamma) V(s)
     reward[..., OBJECTIVES.index("avoid")] = -gap + (1 - 0.99) * v_avoid
     zeros = jnp.zeros((1, 1))
-    rollout = Rollout(obs, jnp.zeros((1, 1), jnp.int32), zeros, jnp.asarray(reward), obs,
-                      zeros, zeros, None, zeros)
-    _, found, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
-                                             jnp.int32(1))
-    assert float(found[0, 0]) == pytest.approx(penalty, abs=1e-4)
+    rollout = Rollout(obs=obs, action=jnp.zeros((1, 1), jnp.int32), log_prob=zeros,
+                      reward=jnp.asarray(reward), final_obs=obs, terminated=zeros, done=zeros,
+                      allowed=None, explore=zeros)
+    assert trainer.margin.tolist() == pytest.approx([0.3])
+    _, penalties, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
+                                                 jnp.int32(1))
+    assert float(penalties[0, 0]) == pytest.approx(penalty, abs=1e-4)
 
 
 def test_seeds_and_slacks_vmap_in_one_compiled_run(small):

@@ -15,6 +15,9 @@ from tpo.errors import TPOError
 ADVANTAGE_FORMS = ("penalized", "literal")
 CONSTRAINTS = ("restriction", "penalty")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
+#: fields added since tpo 0.2, and the value a config written before them meant: a
+#: saved model (or a run's config.toml) without the key was trained without the feature
+ADDED = {"margin": 0.0}
 
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
@@ -71,7 +74,7 @@ class TPOConfig:
     tolerance: float = 0.2
     """restriction: an action is admissible when its violation of an edge is at most
     the slack plus this share of the parent objective's one-step reward range; the
-    penalty form allows the completion constraints (zero slack) the same margin"""
+    penalty form allows the completion constraints (zero slack) the same tolerance"""
     margin: float = 0.15
     """penalty: a constraint is penalised from its slack less this share of the parent
     objective's one-step reward range (at most half the slack): the learned critics
@@ -184,6 +187,13 @@ class TPOConfig:
             if isinstance(values.get(key), list):
                 values[key] = tuple(values[key])
         return cls(**values)
+
+    @classmethod
+    def from_saved(cls, data: dict[str, Any]) -> TPOConfig:
+        """A config that tpo wrote (a saved model's, a resumed run's): a field added
+        since it was written takes the value it meant then (:data:`ADDED`), not
+        today's default."""
+        return cls.from_dict({**ADDED, **data} if isinstance(data, dict) else data)
 
     @classmethod
     def from_toml(cls, text: str) -> TPOConfig:

@@ -210,7 +210,7 @@ class TPO:
         registered, one of tpo's own dependencies (MO-Gymnasium), or the package
         named by ``trust_env_module``."""
         meta, blob = read_model(path)
-        config = TPOConfig.from_dict(meta["config"])
+        config = TPOConfig.from_saved(meta["config"])
         env = from_spec(meta["env"], num_envs=config.num_envs, trust_module=trust_env_module)
         model = cls(env, meta["dag"], meta["slack"], config, meta["seed"])
         model._fresh_env = model.host

@@ -137,7 +137,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         if not (run_dir / "config.toml").exists():
             raise UsageError(f"{run_dir} is not a run directory (no config.toml)")
         with exclusive(run_dir):
-            return _train(args, run_dir, RunSpec.from_toml(run_dir / "config.toml"), None)
+            return _train(args, run_dir, RunSpec.from_toml(run_dir / "config.toml", saved=True),
+                          None)
     if not args.out:
         raise UsageError("give --out RUN_DIR (or --resume RUN_DIR)")
     settings: dict = {}
@@ -225,7 +226,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from tpo.experiments.paper import Settings, job_name
+    from tpo.experiments.paper import Settings
     from tpo.experiments.reproduce import check_settings, reproduce
 
     if not args.out.strip():
@@ -258,8 +259,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     settings = replace(settings, **changes)
     check_settings(settings)  # before the progress bar and before anything is made
     with exclusive(args.out, create=True) as out:
-        weights = {job_name(f, p): len(xs) * len(settings.seeds) * settings.steps
-                   for f, p, xs in settings.jobs()}
+        weights = {name: len(xs) * len(settings.seeds) * settings.steps
+                   for name, _, _, xs in settings.jobs()}
         bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True,
                    disable=args.quiet, desc="reproduce")
         t0 = time.monotonic()

@@ -1,6 +1,7 @@
 """The paper's experiments (§V) as data: Figure 2's four panels (a DAG whose
-edges take the x-axis slack), the values its figure shows, and Figure 3's two
-slack settings."""
+edges take the x-axis slack), the values its figure shows, Figure 3's two
+slack settings, the forms of the constraint every panel runs in, and what
+``tpo reproduce`` runs (:class:`Settings`, its jobs and their names)."""
 
 from __future__ import annotations
 
@@ -55,7 +56,7 @@ class Settings:
 
     @classmethod
     def quick(cls) -> Settings:
-        """A small budget that runs end to end in CI (about two minutes)."""
+        """A small budget that runs end to end in CI (about four minutes, both forms)."""
         return cls(map="small", slacks=(0, 100), seeds=(0, 1), steps=300_000)
 
     def panels(self) -> list[tuple[Panel, list[float]]]:
@@ -63,14 +64,11 @@ class Settings:
         return [*[(p, [float(x) for x in self.slacks]) for p in PANELS],
                 (FIGURE3, list(FIGURE3_SLACKS))]
 
-    def jobs(self) -> list[tuple[str, Panel, list[float]]]:
-        """Every form's panels (:meth:`panels`), the forms in order."""
-        return [(form, p, xs) for form in self.forms for p, xs in self.panels()]
-
-
-def job_name(form: str, panel: Panel) -> str:
-    """A panel of one form: its progress key and its file name in ``OUT/panels``."""
-    return f"{form}-{panel.name}"
+    def jobs(self) -> list[tuple[str, str, Panel, list[float]]]:
+        """Every form's panels (:meth:`panels`), the forms in order, each with its
+        name ``FORM-PANEL``: its progress key and its file name in ``OUT/panels``."""
+        return [(f"{form}-{p.name}", form, p, xs) for form in self.forms
+                for p, xs in self.panels()]
 
 
 def direction(start: float, end: float, scale: float) -> str:

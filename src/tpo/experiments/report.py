@@ -1,6 +1,7 @@
-"""The reproduction's outputs from its panel records: figures, ``results.csv``
-(through :mod:`csv`), ``results.json`` and the markdown report, whose table of
-each line's direction beside the paper's is also the command's summary."""
+"""The reproduction's outputs from the panel records of every form: figures,
+``results.csv`` (through :mod:`csv`), ``results.json`` and the markdown report,
+whose table of the forms' verdicts and table of each line's direction beside
+the paper's are also the command's summary."""
 
 from __future__ import annotations
 
@@ -113,14 +114,16 @@ def report(settings: Settings, records: Records) -> str:
     """Markdown: the forms' verdicts side by side, a table per form and panel, and the
     direction of every line beside the paper's."""
     lines = [f"# Reproduction of the paper's Figure 2 on `{settings.map}`", "",
-             f"{len(settings.seeds)} seeds, {settings.steps:,} env steps per run, in "
-             f"{len(records)} form(s) of the constraint on the same seeds. Values are the "
+             f"{len(settings.seeds)} seeds, {settings.steps:,} env steps per run, "
+             + (f"in the {', '.join(records)} forms of the constraint on the same seeds. "
+                if len(records) > 1 else f"in the {next(iter(records))} form. ")
+             + "Values are the "
              "exact discounted values at the start state of the learned greedy policy "
              "(mean ± std over seeds) and of LAR's policy for the same DAG and slack. "
              "The verdict columns count the seeds whose policy is LAR-correct, strict "
              "and of the same values as LAR's (docs/design.md §6; judged against the "
-             "relaxed solution where LAR is infeasible, and those runs are left out of "
-             "the counts below).", "", verdict_table(records), ""]
+             "relaxed solution where LAR is infeasible; the first table leaves those "
+             "runs out).", "", verdict_table(records), ""]
     for form, panels in records.items():
         for panel in PANELS:
             rec = panels[panel.name]

@@ -30,13 +30,13 @@ from typing import TYPE_CHECKING, Any
 from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
-from tpo.experiments.paper import Panel, Settings, job_name
+from tpo.experiments.paper import Panel, Settings
 
 if TYPE_CHECKING:
     from tpo.algo import TPOConfig
     from tpo.envs.grid import GridNav
 from tpo.experiments.pool import report_progress, run_jobs
-from tpo.experiments.report import VERDICTS, directions, verdict_table, write_outputs
+from tpo.experiments.report import VERDICTS, Records, directions, verdict_table, write_outputs
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class Reproduction:
     in order) and where."""
 
     out: Path
-    records: dict[str, dict[str, dict[str, Any]]]  # {form: {panel: record}}
+    records: Records
 
     def summary(self) -> str:
         """The verdicts of the forms side by side, the direction of each line beside
@@ -58,35 +58,46 @@ class Reproduction:
 def panel_problem(form: str, panel: Panel, xs: list[float], settings: Settings
                   ) -> tuple[GridNav, TPOConfig, list[list[float]]]:
     """The training env, the config and every run's slacks of one panel in ``form``."""
-    from tpo.algo import TPOConfig
     from tpo.envs.grid import GridNav
     from tpo.graph import ObjectiveGraph
 
     env = GridNav(load_map(settings.map), random_start=True)
-    config = TPOConfig(constraint=form, completion=settings.completion)
     n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0, objectives=OBJECTIVES).edges)
-    return env, config, [panel.slack(x, n_edges) for x in xs]
+    return env, learner(form, settings), [panel.slack(x, n_edges) for x in xs]
+
+
+def learner(form: str, settings: Settings) -> TPOConfig:
+    """The config every run of ``form`` trains with."""
+    from tpo.algo import TPOConfig
+
+    return TPOConfig(constraint=form, completion=settings.completion)
 
 
 def check_settings(settings: Settings) -> None:
-    """Raise on anything a panel's training would refuse (map, budget, config),
-    before anything is written."""
+    """Raise on anything a panel's training would refuse (forms, map, budget,
+    config), before anything is written."""
     from tpo.algo import Trainer
+    from tpo.algo.config import CONSTRAINTS
     from tpo.graph import ObjectiveGraph
 
-    for form, panel, xs in settings.jobs():
+    forms = settings.forms
+    if not isinstance(forms, tuple) or not forms or len(set(forms)) != len(forms) \
+            or not set(forms) <= set(CONSTRAINTS):
+        raise TPOError(f"forms must be distinct names from {', '.join(CONSTRAINTS)}, "
+                       f"got {forms!r}")
+    for _, form, panel, xs in settings.jobs():
         env, config, slacks = panel_problem(form, panel, xs, settings)
         graph = ObjectiveGraph.parse(panel.dag, slacks[0], objectives=env.objectives)
         Trainer(env, graph, config, settings.steps)
 
 
-def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, out: Path
-              ) -> dict[str, Any]:
-    """Train and evaluate one panel in ``form`` (in a worker process); write its JSON."""
+def run_panel(name: str, form: str, panel: Panel, xs: list[float], settings: Settings,
+              out: Path) -> dict[str, Any]:
+    """Train and evaluate one panel in ``form`` (job ``name``, in a worker process);
+    write its JSON."""
     from tpo.experiments.sweep import run_sweep
 
     env, config, slacks = panel_problem(form, panel, xs, settings)
-    name = job_name(form, panel)
     t0 = time.monotonic()
     result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps,
                        progress=lambda done, total: report_progress(name, done / total),
@@ -113,10 +124,11 @@ def reproduce(out: str | Path, settings: Settings | None = None,
               progress: Progress | None = None) -> Reproduction:
     """Run (or finish) every panel into ``out`` and write figures, tables and report.
 
-    A directory holding another reproduction's settings is refused; panels
-    already in ``out/panels`` are skipped. ``progress({panel: fraction})`` is
-    called as panels advance (keys: :func:`~tpo.experiments.paper.job_name`).
-    ``settings`` default to the paper's (:class:`Settings`).
+    A directory holding another reproduction (other settings, or runs of another
+    learner config) is refused; panels already in ``out/panels`` are skipped.
+    ``progress({job: fraction})`` is called at the start and as panels advance
+    (keys: the names of :meth:`Settings.jobs`). ``settings`` default to the
+    paper's (:class:`Settings`).
     """
     settings = settings or Settings()
     check_settings(settings)
@@ -125,24 +137,27 @@ def reproduce(out: str | Path, settings: Settings | None = None,
     settings_file = out / "settings.json"
     mine = asdict(settings)
     mine.pop("workers")
+    mine["learners"] = {form: learner(form, settings).to_dict() for form in settings.forms}
+    mine = json.loads(json.dumps(mine))
     if settings_file.exists():
         theirs = json.loads(settings_file.read_text())
-        if theirs != json.loads(json.dumps(mine)):
-            raise TPOError(f"{out} holds a reproduction with other settings ({theirs}); "
-                           "choose another --out")
+        if theirs != mine:
+            changed = sorted(k for k in {*theirs, *mine} if theirs.get(k) != mine.get(k))
+            raise TPOError(f"{out} holds a reproduction with other settings (in "
+                           f"{', '.join(changed)}: see its settings.json); choose another --out")
     else:
         write_atomic(settings_file, json.dumps(mine))
     found: dict[str, dict[str, Any]] = {}
     todo = []
-    for form, panel, xs in settings.jobs():
-        name = job_name(form, panel)
+    for name, form, panel, xs in settings.jobs():
         done = out / "panels" / f"{name}.json"
         if done.exists():
             found[name] = json.loads(done.read_text())
         else:
-            todo.append((name, (form, panel, xs, settings, out)))
-    fractions = {job_name(f, p): 1.0 if job_name(f, p) in found else 0.0
-                 for f, p, _ in settings.jobs()}
+            todo.append((name, (name, form, panel, xs, settings, out)))
+    fractions = {name: float(name in found) for name, *_ in settings.jobs()}
+    if progress is not None:
+        progress(dict(fractions))
 
     def advance(name: str, fraction: float) -> None:
         if fraction > fractions[name]:  # a late report never moves a panel back
@@ -151,7 +166,7 @@ def reproduce(out: str | Path, settings: Settings | None = None,
                 progress(dict(fractions))
 
     found.update(run_jobs(run_panel, todo, settings.workers, advance))
-    records = {form: {p.name: found[job_name(form, p)] for p, _ in settings.panels()}
+    records = {form: {p.name: found[name] for name, f, p, _ in settings.jobs() if f == form}
                for form in settings.forms}
     write_outputs(out, settings, records)
     return Reproduction(out, records)

@@ -292,8 +292,8 @@ def train_run(run_dir: str | Path, episodes: int = 100, progress: Progress | Non
 def _train(run_dir: Path, episodes: int, progress: Progress | None, chunk_updates: int,
            replaced: Replaced | None, trust_module: str | None) -> dict[str, Any]:
     check_not_stranded(run_dir, replaced)
-    spec = RunSpec.from_toml(run_dir / "config.toml")
     saved = checkpoints(run_dir)
+    spec = RunSpec.from_toml(run_dir / "config.toml", saved=bool(saved))
     model = spec.model()
     if saved:
         fresh, model = model, _newest_good(saved, trust_module)

@@ -50,8 +50,9 @@ class RunSpec:
     config: TPOConfig = field(default_factory=TPOConfig)
 
     @classmethod
-    def from_settings(cls, settings: dict[str, Any]) -> RunSpec:
-        """Run fields (defaults as declared) plus any TPOConfig field."""
+    def from_settings(cls, settings: dict[str, Any], saved: bool = False) -> RunSpec:
+        """Run fields (defaults as declared) plus any TPOConfig field; ``saved``: the
+        settings of a run that tpo wrote (:meth:`TPOConfig.from_saved`)."""
         settings = dict(settings)
         run = {f.name: settings.pop(f.name, f.default) for f in fields(cls)
                if f.name != "config"}
@@ -86,12 +87,14 @@ class RunSpec:
         return cls(map=str(run["map"]), dag=str(run["dag"]), slack=slack, seed=run["seed"],
                    steps=run["steps"], slip=float(run["slip"]),
                    observation=str(run["observation"]), env=str(run["env"]),
-                   objectives=tuple(objectives), config=TPOConfig.from_dict(settings))
+                   objectives=tuple(objectives),
+                   config=(TPOConfig.from_saved if saved else TPOConfig.from_dict)(settings))
 
     @classmethod
-    def from_toml(cls, path: str | Path) -> RunSpec:
+    def from_toml(cls, path: str | Path, saved: bool = False) -> RunSpec:
         try:
-            return cls.from_settings(tomllib.loads(Path(path).read_text(encoding="utf-8")))
+            return cls.from_settings(tomllib.loads(Path(path).read_text(encoding="utf-8")),
+                                     saved)
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
             raise RunError(f"cannot read {path}: {err}") from None
 
