@@ -1,6 +1,7 @@
 """`tpo reproduce`: the sweep runner, its resume, and the quick end-to-end run."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from tpo.envs import grid_model, load_map
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
 from tpo.experiments.paper import FORMS, PANELS, Settings, direction
-from tpo.experiments.report import results_csv, verdict_table
+from tpo.experiments.report import budget_text, results_csv, verdict_table
 from tpo.experiments.reproduce import check_settings, reproduce
 from tpo.experiments.sweep import run_sweep
 from tpo.graph import ObjectiveGraph
@@ -22,8 +23,19 @@ from tpo.tabular import solve_lar
 TINY = TPOConfig(num_envs=8, num_steps=32)
 
 
-def test_the_reproduction_runs_every_form_of_the_learner():
+def test_the_reproduction_runs_the_default_learner_and_can_run_every_form():
     assert sorted(FORMS) == sorted(CONSTRAINTS) and FORMS[0] == TPOConfig().constraint
+    assert Settings().forms == Settings.quick().forms == (TPOConfig().constraint,)
+
+
+def test_each_panel_trains_its_share_of_the_budget():
+    settings = Settings()
+    steps = {p.name: settings.steps_of(p) for p, _ in settings.panels()}
+    assert steps == {"a": 500_000, "b": 1_500_000, "c": 500_000, "d": 500_000,
+                     "fig3": 500_000}
+    assert budget_text(settings) == "1,500,000 in (b), 500,000 in (a) (c) (d) (fig3)"
+    even = replace(settings, steps=900, shares={})
+    assert budget_text(even) == "900" and {even.steps_of(p) for p, _ in even.panels()} == {900}
 
 
 def test_panels_sweep_the_edges_the_paper_names():
@@ -77,7 +89,7 @@ def test_bad_forms_are_one_line(forms):
 def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path, monkeypatch):
     """Finished panels are found by form and panel; the rest is queued, and the
     progress starts where the directory is."""
-    settings = Settings.quick()
+    settings = replace(Settings.quick(), forms=FORMS)
     out = tmp_path / "repro"
     queued, seen = [], []
 
@@ -131,7 +143,8 @@ def test_a_killed_sweep_resumes_from_its_checkpoint_to_the_same_result(tmp_path)
 @pytest.mark.slow
 def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_path, capsys):
     out = tmp_path / "repro"
-    assert main(["reproduce", "--quick", "--out", str(out), "--quiet"]) == 0
+    both = ["--constraint", "both"]
+    assert main(["reproduce", "--quick", *both, "--out", str(out), "--quiet"]) == 0
     names = {p.name for p in out.iterdir()}
     pngs = {f"figure{n}-{form}.png" for n in (2, 3) for form in ("penalty", "restriction")}
     assert pngs | {"results.csv", "results.json", "report.md", "settings.json",
@@ -177,14 +190,14 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     assert correct.shape == strict.shape == (2, 2) and not (strict & ~correct).any()
     # A second run skips every finished panel; other settings are refused.
     before = {p.name: p.stat().st_mtime_ns for p in (out / "panels").iterdir()}
-    assert main(["reproduce", "--quick", "--out", str(out), "--quiet"]) == 0
+    assert main(["reproduce", "--quick", *both, "--out", str(out), "--quiet"]) == 0
     assert {p.name: p.stat().st_mtime_ns for p in (out / "panels").iterdir()} == before
     capsys.readouterr()
-    assert main(["reproduce", "--quick", "--seeds", "3", "--out", str(out), "--quiet"]) == 2
-    assert "holds a reproduction with other settings" in capsys.readouterr().err
-    # one form alone is another reproduction, in its own directory
-    assert main(["reproduce", "--quick", "--constraint", "restriction", "--out", str(out),
+    assert main(["reproduce", "--quick", *both, "--seeds", "3", "--out", str(out),
                  "--quiet"]) == 2
+    assert "holds a reproduction with other settings" in capsys.readouterr().err
+    # one form alone (the default) is another reproduction, in its own directory
+    assert main(["reproduce", "--quick", "--out", str(out), "--quiet"]) == 2
     assert "other settings (in forms, learners: see its settings.json)" in \
         capsys.readouterr().err
     assert json.loads((out / "settings.json").read_text())["forms"] == ["penalty",

@@ -226,7 +226,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from tpo.experiments.paper import Settings
+    from tpo.experiments.paper import FORMS, Settings
     from tpo.experiments.reproduce import check_settings, reproduce
 
     if not args.out.strip():
@@ -253,14 +253,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             raise UsageError("--workers must be at least 1")
         changes["workers"] = args.workers
     if args.constraint is not None:
-        changes["forms"] = (args.constraint,)
+        changes["forms"] = FORMS if args.constraint == "both" else (args.constraint,)
     if args.completion:
         changes["completion"] = True
     settings = replace(settings, **changes)
     check_settings(settings)  # before the progress bar and before anything is made
     with exclusive(args.out, create=True) as out:
-        weights = {name: len(xs) * len(settings.seeds) * settings.steps
-                   for name, _, _, xs in settings.jobs()}
+        weights = {name: len(xs) * len(settings.seeds) * settings.steps_of(panel)
+                   for name, _, panel, xs in settings.jobs()}
         bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True,
                    disable=args.quiet, desc="reproduce")
         t0 = time.monotonic()
@@ -344,11 +344,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--map", help="bundled map or TOML file (default home)")
     p.add_argument("--slacks", help="slack values of the x-axis (default 0,1,2,5,10,20,50,100)")
     p.add_argument("--seeds", type=int, help="number of seeds (default 5; at most 1000)")
-    p.add_argument("--steps", type=int, help="env steps per configuration and seed")
+    p.add_argument("--steps", type=int,
+                   help="env steps per run of a panel of full share (default 1,500,000; "
+                        "each panel's runs train its share: docs/reproduce.md)")
     p.add_argument("--workers", type=int, help="worker processes (default 2)")
-    p.add_argument("--constraint", choices=CONSTRAINTS,
-                   help="run one form of the constraint only (default: both, side by side "
-                        "on the same seeds)")
+    p.add_argument("--constraint", choices=(*CONSTRAINTS, "both"),
+                   help="the form of the constraint (default penalty, the default "
+                        "learner's); both: every form side by side on the same seeds")
     p.add_argument("--completion", action="store_true",
                    help="completion phases after the leaf (docs/design.md §5)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -110,11 +110,22 @@ def verdict_table(records: Records) -> str:
     return "\n".join(rows)
 
 
+def budget_text(settings: Settings) -> str:
+    """Each panel's steps per run, e.g. ``1,500,000 in (b), 500,000 in (a), (c)``."""
+    by_steps: dict[int, list[str]] = {}
+    for panel, _ in settings.panels():
+        by_steps.setdefault(settings.steps_of(panel), []).append(f"({panel.name})")
+    if len(by_steps) == 1:
+        return f"{next(iter(by_steps)):,}"
+    return ", ".join(f"{steps:,} in {' '.join(names)}"
+                     for steps, names in sorted(by_steps.items(), reverse=True))
+
+
 def report(settings: Settings, records: Records) -> str:
     """Markdown: the forms' verdicts side by side, a table per form and panel, and the
     direction of every line beside the paper's."""
     lines = [f"# Reproduction of the paper's Figure 2 on `{settings.map}`", "",
-             f"{len(settings.seeds)} seeds, {settings.steps:,} env steps per run, "
+             f"{len(settings.seeds)} seeds; env steps per run: {budget_text(settings)}; "
              + (f"in the {', '.join(records)} forms of the constraint on the same seeds. "
                 if len(records) > 1 else f"in the {next(iter(records))} form. ")
              + "Values are the "

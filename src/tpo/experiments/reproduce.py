@@ -77,7 +77,7 @@ def check_settings(settings: Settings) -> None:
     """Raise on anything a panel's training would refuse (forms, map, budget,
     config), before anything is written."""
     from tpo.algo import Trainer
-    from tpo.algo.config import CONSTRAINTS
+    from tpo.algo.config import CONSTRAINTS, ConfigError
     from tpo.graph import ObjectiveGraph
 
     forms = settings.forms
@@ -88,7 +88,12 @@ def check_settings(settings: Settings) -> None:
     for _, form, panel, xs in settings.jobs():
         env, config, slacks = panel_problem(form, panel, xs, settings)
         graph = ObjectiveGraph.parse(panel.dag, slacks[0], objectives=env.objectives)
-        Trainer(env, graph, config, settings.steps)
+        steps = settings.steps_of(panel)
+        try:
+            Trainer(env, graph, config, steps)
+        except ConfigError as err:
+            raise ConfigError(f"panel ({panel.name}) trains {steps:,} steps per run (its share "
+                              f"of {settings.steps:,}): {err}") from None
 
 
 def run_panel(name: str, form: str, panel: Panel, xs: list[float], settings: Settings,
@@ -99,7 +104,7 @@ def run_panel(name: str, form: str, panel: Panel, xs: list[float], settings: Set
 
     env, config, slacks = panel_problem(form, panel, xs, settings)
     t0 = time.monotonic()
-    result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps,
+    result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps_of(panel),
                        progress=lambda done, total: report_progress(name, done / total),
                        checkpoint=out / "panels" / f"{name}.ckpt")
     grid = env.tabular(config.gamma)
