@@ -121,12 +121,13 @@ def test_train_resume_finishes_a_run_from_its_last_checkpoint(tmp_path, capsys):
 
 
 def test_a_run_of_tpo_0_2_resumes_without_the_margin_it_never_had(tmp_path):
-    """A run written before ``margin`` existed (no key in its config.toml or its
-    checkpoints) resumes as it was trained, with margin 0, to the same result."""
+    """A run written before ``margin`` and ``tie_break`` existed (no keys in its
+    config.toml or its checkpoints) resumes as it was trained, with both 0, to the
+    same result."""
     out = tmp_path / "run"
     assert main(["train", "--map", "small", "--dag", "A>G", "--slack", "1", "--margin", "0",
-                 "--steps", str(2 * 2048 * 8), "--out", str(out), "--episodes", "4",
-                 "--quiet"]) == 0
+                 "--tie-break", "0", "--steps", str(2 * 2048 * 8), "--out", str(out),
+                 "--episodes", "4", "--quiet"]) == 0
     done = json.loads((out / "eval.json").read_text())
     metrics = (out / "metrics.csv").read_text()  # the penalties of every update
     for p in [out / "model", *sorted((out / "checkpoints").iterdir())[1:]]:
@@ -134,13 +135,14 @@ def test_a_run_of_tpo_0_2_resumes_without_the_margin_it_never_had(tmp_path):
     (out / "eval.json").unlink()
     for config in [out / "config.toml", *out.glob("checkpoints/*/model.json")]:
         text = config.read_text()
-        assert "margin" in text
+        assert "margin" in text and "tie_break" in text
         config.write_text("\n".join(line for line in text.splitlines()
-                                    if "margin" not in line))
+                                    if "margin" not in line and "tie_break" not in line))
     assert main(["train", "--resume", str(out), "--quiet", "--episodes", "4"]) == 0
     assert json.loads((out / "eval.json").read_text()) == done
     assert (out / "metrics.csv").read_text() == metrics
-    assert json.loads((out / "model" / "model.json").read_text())["config"]["margin"] == 0.0
+    saved = json.loads((out / "model" / "model.json").read_text())["config"]
+    assert (saved["margin"], saved["tie_break"]) == (0.0, 0.0)
 
 
 def test_train_refuses_to_replace_a_run_and_rejects_bad_config(tmp_path, capsys):

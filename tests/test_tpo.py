@@ -38,15 +38,16 @@ def test_save_and_load_give_the_same_policy(model, tmp_path):
 
 
 def test_a_model_saved_before_the_margin_existed_loads_without_it(model, tmp_path):
-    """tpo 0.2 penalised from the slack itself: its saved models keep doing so, and a
-    new config without the key gets today's default."""
+    """tpo 0.2 penalised from the slack itself and had no tie-break: its saved models
+    keep doing so, and a new config without the keys gets today's defaults."""
     assert model.config.margin == 0.15
     path = model.save(tmp_path / "run")
     meta = json.loads((path / "model.json").read_text())
-    del meta["config"]["margin"]
+    del meta["config"]["margin"], meta["config"]["tie_break"]
     (path / "model.json").write_text(json.dumps(meta))
-    assert TPO.load(path).config.margin == 0.0
-    assert TPOConfig.from_dict({}).margin == 0.15
+    loaded = TPO.load(path).config
+    assert (loaded.margin, loaded.tie_break) == (0.0, 0.0)
+    assert (TPOConfig.from_dict({}).margin, TPOConfig.from_dict({}).tie_break) == (0.15, 0.1)
 
 
 def test_a_restricted_model_acts_within_its_last_phase_and_round_trips(tmp_path):

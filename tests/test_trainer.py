@@ -135,6 +135,47 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
     assert float(penalties[0, 0]) == pytest.approx(penalty, abs=1e-4)
 
 
+@pytest.mark.parametrize("dag, expected", [
+    # ranges on the grids: goal 1, avoid 2 (a bump costs 1 more), monitor 2
+    ("M>A>G", [[0, 0, 0], [0.1 * 2 / 2, 0, 0], [0.1 * 1 / 2, 0.01 * 1 / 2, 0]]),
+    ("A>G, M>G", [[0, 0, 0], [0, 0, 0], [0.1 * 1 / 2, 0.01 * 1 / 2, 0]]),  # roots A, M
+    ("G>A", [[0, 0], [0.1 * 2 / 1, 0]])])
+def test_tie_break_weighs_each_phase_s_ancestors_roots_first(small, dag, expected):
+    train_env, _ = small
+    graph = ObjectiveGraph.parse(dag, objectives=OBJECTIVES)
+    problem = Problem.build(graph, OBJECTIVES, TPOConfig(), train_env.reward_low,
+                            train_env.reward_high)
+    np.testing.assert_allclose(problem.tie, expected, rtol=1e-6)
+    off = Problem.build(graph, OBJECTIVES, TPOConfig(tie_break=0.0), train_env.reward_low,
+                        train_env.reward_high)
+    assert not off.tie.any()
+
+
+def test_the_tie_break_adds_the_ancestors_advantages(small):
+    """A goal-phase transition of A>G whose one-step avoid advantage is ``-0.7``: its
+    advantage gains ``0.1 * range_goal / range_avoid * -0.7 = -0.035`` (a rollout of
+    one step: GAE is the one-step advantage)."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("A>G", 100, objectives=OBJECTIVES)
+    advantages = []
+    for tie in (0.0, 0.1):
+        config = TPOConfig(num_envs=1, num_steps=1, num_minibatches=1, tie_break=tie)
+        trainer = Trainer(train_env, graph, config, 2)
+        state = trainer.init(jax.random.key(0))
+        obs = state.obs[None]  # [T=1, E=1, D]
+        v_avoid = float(trainer.values(state, obs)[0, 0, 0, 0])  # head 0: avoid
+        reward = np.zeros((1, 1, len(OBJECTIVES)), np.float32)
+        reward[..., OBJECTIVES.index("avoid")] = -0.7 + (1 - 0.99) * v_avoid  # s' = s
+        zeros = jnp.zeros((1, 1))
+        rollout = Rollout(obs=obs, action=jnp.zeros((1, 1), jnp.int32), log_prob=zeros,
+                          reward=jnp.asarray(reward), final_obs=obs, terminated=zeros,
+                          done=zeros, allowed=None, explore=zeros)
+        batch, _, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
+                                                 jnp.int32(1))
+        advantages.append(float(batch.advantage[0]))
+    assert advantages[1] - advantages[0] == pytest.approx(0.1 * 1 / 2 * -0.7, abs=1e-5)
+
+
 def test_seeds_and_slacks_vmap_in_one_compiled_run(small):
     """docs/design.md §5's hang: parameters initialised outside the vmapped function."""
     train_env, _ = small
@@ -192,6 +233,8 @@ def test_schedules_restart_with_every_phase(small):
         ({"hidden": (64, 0)}, "hidden must be 1 to 16 layer widths from 1 to 4096"),
         ({"hidden": (3_000_000_000,)}, "hidden must be 1 to 16 layer widths"),
         ({"anneal_lr": 1}, "anneal_lr must be true or false"),
+        ({"tie_break": 1.0}, "tie_break must be in [0, 1), got 1.0"),
+        ({"tie_break": -0.1}, "tie_break must be a finite number >= 0"),
     ],
 )
 def test_bad_config_is_rejected(kwargs, message):

@@ -17,7 +17,7 @@ CONSTRAINTS = ("restriction", "penalty")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 #: fields added since tpo 0.2, and the value a config written before them meant: a
 #: saved model (or a run's config.toml) without the key was trained without the feature
-ADDED = {"margin": 0.0}
+ADDED = {"margin": 0.0, "tie_break": 0.0}
 
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
@@ -80,6 +80,11 @@ class TPOConfig:
     objective's one-step reward range (at most half the slack): the learned critics
     cannot tell an action that LAR barely admits from one it excludes, and the
     margin keeps the policy on the safe side (docs/notes/tpo-learning.md)"""
+    tie_break: float = 0.1
+    """a phase's policy also weighs its ancestors' returns, roots first: the j-th
+    ancestor in topological order by tie_break ** (j + 1) (in units of reward range),
+    so where the phase's own objective is indifferent its policy follows its
+    ancestors, as the tie rule's completion does (docs/design.md §2); 0 turns it off"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of
@@ -134,8 +139,10 @@ class TPOConfig:
         _nonnegative("tolerance", self.tolerance)
         _nonnegative("margin", self.margin)
         _nonnegative("explore", self.explore)
-        if self.explore >= 1:
-            raise ConfigError(f"explore must be in [0, 1), got {self.explore!r}")
+        _nonnegative("tie_break", self.tie_break)
+        for name in ("explore", "tie_break"):
+            if getattr(self, name) >= 1:
+                raise ConfigError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
         if not isinstance(self.constraint, str) or self.constraint not in CONSTRAINTS:
             raise ConfigError(f"constraint must be one of {', '.join(CONSTRAINTS)}, "
                               f"got {self.constraint!r}")

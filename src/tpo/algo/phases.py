@@ -36,6 +36,9 @@ class Problem:
         slack_index: ``[C]`` its slack: an edge's index, or ``n_edges`` for zero.
         active: ``[P, C]`` 1 where phase ``p`` keeps constraint ``c``.
         beta: ``[P]`` penalty multiplier of every phase.
+        tie: ``[P, P]`` weight of head ``h``'s return in phase ``p``'s policy advantage:
+            ``tie_break ** (j + 1) * range_p / range_h`` for the ``j``-th ancestor ``h``
+            of ``p`` in topological order (roots first), else 0.
     """
 
     objectives: tuple[str, ...]
@@ -45,6 +48,7 @@ class Problem:
     slack_index: np.ndarray
     active: np.ndarray
     beta: np.ndarray
+    tie: np.ndarray
 
     @classmethod
     def build(cls, graph: ObjectiveGraph, objectives: Sequence[str], config: TPOConfig,
@@ -74,9 +78,14 @@ class Problem:
             beta = value_bounds(reward_low, reward_high, config.gamma)[reward_arr]
         else:
             beta = np.full(len(reward), float(config.beta))
+        ranges = reward_ranges(reward_low, reward_high)[reward_arr]
+        tie = np.zeros((len(rows), len(rows)), np.float32)
+        for p, name in enumerate(graph.order):
+            for j, h in enumerate(phase[n] for n in graph.ancestors(name)):
+                tie[p, h] = config.tie_break ** (j + 1) * ranges[p] / ranges[h]
         pairs = np.array(constraints, np.int32).reshape(-1, 2)
         return cls(tuple(objectives), graph, reward_arr, pairs[:, 0], pairs[:, 1], active,
-                   beta.astype(np.float32))
+                   beta.astype(np.float32), tie)
 
     @property
     def n_phases(self) -> int:

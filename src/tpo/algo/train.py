@@ -46,7 +46,7 @@ from tpo.algo.lagrangian import (
     lagrangian_advantages,
     violations,
 )
-from tpo.algo.losses import clipped_surrogate, normalize, weighted_mean
+from tpo.algo.losses import clipped_surrogate, gae, normalize, weighted_mean
 from tpo.algo.networks import (
     ADVANTAGE_UNIT,
     Actor,
@@ -349,6 +349,9 @@ class Trainer:
         ``r_h + gamma V_h(s') - V_h(s)`` (of ``[T, E, P]``): with ``V_h`` frozen these
         targets are fixed, so an ancestor's advantages keep sharpening on every later
         rollout while its values stay frozen.
+        Both forms add to the policy's advantage the ancestors' GAE, each against its
+        frozen critic, weighted by ``problem.tie`` (the roots-first tie-break); the
+        critic's targets stay the phase's own.
         """
         cfg, prob = self.config, self.problem
         pick = jax.nn.one_hot(phase, prob.n_phases)
@@ -372,10 +375,17 @@ class Trainer:
             q_target = None
         # An exploring step cuts the trace of the policy's returns before it.
         following = jnp.concatenate([rollout.explore[1:], jnp.zeros_like(rollout.explore[:1])])
+        done = jnp.maximum(rollout.done, following)
         advantage, target = lagrangian_advantages(
             cfg.advantage, reward, v, next_v, penalty, jnp.asarray(prob.beta)[phase],
-            rollout.terminated, jnp.maximum(rollout.done, following), cfg.gamma,
-            cfg.gae_lambda)
+            rollout.terminated, done, cfg.gamma, cfg.gae_lambda)
+        if prob.tie.any():  # the ancestors' returns, each against its frozen critic
+            shape = rewards.shape
+            ancestral, _ = gae(rewards, value, next_value,
+                               jnp.broadcast_to(rollout.terminated[..., None], shape),
+                               jnp.broadcast_to(done[..., None], shape), cfg.gamma,
+                               cfg.gae_lambda)
+            advantage = advantage + ancestral @ jnp.asarray(prob.tie)[phase]
         batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantage, target,
                       q_target, rollout.allowed, 1.0 - rollout.explore)
         batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
