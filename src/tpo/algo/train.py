@@ -46,7 +46,7 @@ from tpo.algo.lagrangian import (
     lagrangian_advantages,
     violations,
 )
-from tpo.algo.losses import clipped_surrogate, gae, normalize, weighted_mean
+from tpo.algo.losses import clipped_surrogate, discounted_cumsum, normalize, weighted_mean
 from tpo.algo.networks import (
     ADVANTAGE_UNIT,
     Actor,
@@ -379,12 +379,8 @@ class Trainer:
         advantage, target = lagrangian_advantages(
             cfg.advantage, reward, v, next_v, penalty, jnp.asarray(prob.beta)[phase],
             rollout.terminated, done, cfg.gamma, cfg.gae_lambda)
-        if prob.tie.any():  # the ancestors' returns, each against its frozen critic
-            shape = rewards.shape
-            ancestral, _ = gae(rewards, value, next_value,
-                               jnp.broadcast_to(rollout.terminated[..., None], shape),
-                               jnp.broadcast_to(done[..., None], shape), cfg.gamma,
-                               cfg.gae_lambda)
+        if prob.tie.any():  # the ancestors' GAE: their one-step advantages, discounted
+            ancestral = discounted_cumsum(adv_all, cfg.gamma * cfg.gae_lambda, done[..., None])
             advantage = advantage + ancestral @ jnp.asarray(prob.tie)[phase]
         batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantage, target,
                       q_target, rollout.allowed, 1.0 - rollout.explore)

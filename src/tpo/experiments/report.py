@@ -111,7 +111,7 @@ def verdict_table(records: Records) -> str:
 
 
 def budget_text(settings: Settings) -> str:
-    """Each panel's steps per run, e.g. ``1,500,000 in (b), 500,000 in (a), (c)``."""
+    """Each panel's steps per run, e.g. ``1,500,000 in (b), 1,000,000 in (a) (c)``."""
     by_steps: dict[int, list[str]] = {}
     for panel, _ in settings.panels():
         by_steps.setdefault(settings.steps_of(panel), []).append(f"({panel.name})")
