@@ -137,10 +137,12 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
 
 @pytest.mark.parametrize("dag, expected", [
     # ranges on the grids: goal 1, avoid 2 (a bump costs 1 more), monitor 2
-    ("M>A>G", [[0, 0, 0], [0.1 * 2 / 2, 0, 0], [0.1 * 1 / 2, 0.01 * 1 / 2, 0]]),
+    # only the leaf breaks ties: an inner phase keeps every action it is indifferent
+    # among open to its descendants
+    ("M>A>G", [[0, 0, 0], [0, 0, 0], [0.1 * 1 / 2, 0.01 * 1 / 2, 0]]),
     ("A>G, M>G", [[0, 0, 0], [0, 0, 0], [0.1 * 1 / 2, 0.01 * 1 / 2, 0]]),  # roots A, M
     ("G>A", [[0, 0], [0.1 * 2 / 1, 0]])])
-def test_tie_break_weighs_each_phase_s_ancestors_roots_first(small, dag, expected):
+def test_tie_break_weighs_the_leaf_s_ancestors_roots_first(small, dag, expected):
     train_env, _ = small
     graph = ObjectiveGraph.parse(dag, objectives=OBJECTIVES)
     problem = Problem.build(graph, OBJECTIVES, TPOConfig(), train_env.reward_low,
@@ -151,10 +153,14 @@ def test_tie_break_weighs_each_phase_s_ancestors_roots_first(small, dag, expecte
     assert not off.tie.any()
 
 
-def test_the_tie_break_adds_the_ancestors_advantages(small):
-    """A goal-phase transition of A>G whose one-step avoid advantage is ``-0.7``: its
-    advantage gains ``0.1 * range_goal / range_avoid * -0.7 = -0.035`` (a rollout of
-    one step: GAE is the one-step advantage)."""
+@pytest.mark.parametrize("avoid_advantage, gain", [
+    (-0.7, 0.1 * 1 / 2 * -0.7),  # tie_break * range_goal / range_avoid * -0.7
+    (-90.0, -0.1 * 1),  # bounded by tie_break * range_goal (a terminal's lost value-to-go)
+    (30.0, 0.1 * 1)])
+def test_the_tie_break_adds_the_ancestors_advantages_bounded(small, avoid_advantage, gain):
+    """A goal-phase transition of A>G with a given one-step avoid advantage: its
+    advantage gains the weighted avoid advantage, at most ``tie_break * range_goal``
+    in size (a rollout of one step: GAE is the one-step advantage)."""
     train_env, _ = small
     graph = ObjectiveGraph.parse("A>G", 100, objectives=OBJECTIVES)
     advantages = []
@@ -165,7 +171,7 @@ def test_the_tie_break_adds_the_ancestors_advantages(small):
         obs = state.obs[None]  # [T=1, E=1, D]
         v_avoid = float(trainer.values(state, obs)[0, 0, 0, 0])  # head 0: avoid
         reward = np.zeros((1, 1, len(OBJECTIVES)), np.float32)
-        reward[..., OBJECTIVES.index("avoid")] = -0.7 + (1 - 0.99) * v_avoid  # s' = s
+        reward[..., OBJECTIVES.index("avoid")] = avoid_advantage + (1 - 0.99) * v_avoid
         zeros = jnp.zeros((1, 1))
         rollout = Rollout(obs=obs, action=jnp.zeros((1, 1), jnp.int32), log_prob=zeros,
                           reward=jnp.asarray(reward), final_obs=obs, terminated=zeros,
@@ -173,7 +179,7 @@ def test_the_tie_break_adds_the_ancestors_advantages(small):
         batch, _, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
                                                  jnp.int32(1))
         advantages.append(float(batch.advantage[0]))
-    assert advantages[1] - advantages[0] == pytest.approx(0.1 * 1 / 2 * -0.7, abs=1e-5)
+    assert advantages[1] - advantages[0] == pytest.approx(gain, abs=1e-5)
 
 
 def test_seeds_and_slacks_vmap_in_one_compiled_run(small):

@@ -81,10 +81,11 @@ class TPOConfig:
     cannot tell an action that LAR barely admits from one it excludes, and the
     margin keeps the policy on the safe side (docs/notes/tpo-learning.md)"""
     tie_break: float = 0.1
-    """a phase's policy also weighs its ancestors' returns, roots first: the j-th
-    ancestor in topological order by tie_break ** (j + 1) (in units of reward range),
-    so where the phase's own objective is indifferent its policy follows its
-    ancestors, as the tie rule's completion does (docs/design.md §2); 0 turns it off"""
+    """the leaf's policy also weighs its ancestors' returns, roots first: the j-th
+    ancestor in topological order by tie_break ** (j + 1) (in units of reward range;
+    each step's share at most tie_break of the leaf's reward range), so where the
+    leaf is indifferent its policy follows its ancestors, as the tie rule's
+    completion does (docs/design.md §2); 0 turns it off"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of

@@ -38,7 +38,11 @@ class Problem:
         beta: ``[P]`` penalty multiplier of every phase.
         tie: ``[P, P]`` weight of head ``h``'s return in phase ``p``'s policy advantage:
             ``tie_break ** (j + 1) * range_p / range_h`` for the ``j``-th ancestor ``h``
-            of ``p`` in topological order (roots first), else 0.
+            of the leaf ``p`` in topological order (roots first), else 0 (an inner
+            phase breaks no ties: it keeps its indifference open to descendants).
+        tie_bound: ``[P]`` the most the tie-break moves one step's advantage of phase
+            ``p``: ``tie_break * range_p``, so an ancestor's large value-to-go (lost
+            at a terminal step) never outweighs the phase's own advantage there.
     """
 
     objectives: tuple[str, ...]
@@ -49,6 +53,7 @@ class Problem:
     active: np.ndarray
     beta: np.ndarray
     tie: np.ndarray
+    tie_bound: np.ndarray
 
     @classmethod
     def build(cls, graph: ObjectiveGraph, objectives: Sequence[str], config: TPOConfig,
@@ -80,12 +85,13 @@ class Problem:
             beta = np.full(len(reward), float(config.beta))
         ranges = reward_ranges(reward_low, reward_high)[reward_arr]
         tie = np.zeros((len(rows), len(rows)), np.float32)
-        for p, name in enumerate(graph.order):
-            for j, h in enumerate(phase[n] for n in graph.ancestors(name)):
-                tie[p, h] = config.tie_break ** (j + 1) * ranges[p] / ranges[h]
+        leaf = phase[graph.leaf]
+        for j, h in enumerate(phase[n] for n in graph.ancestors(graph.leaf)):
+            tie[leaf, h] = config.tie_break ** (j + 1) * ranges[leaf] / ranges[h]
         pairs = np.array(constraints, np.int32).reshape(-1, 2)
         return cls(tuple(objectives), graph, reward_arr, pairs[:, 0], pairs[:, 1], active,
-                   beta.astype(np.float32), tie)
+                   beta.astype(np.float32), tie,
+                   (config.tie_break * ranges).astype(np.float32))
 
     @property
     def n_phases(self) -> int:

@@ -350,8 +350,9 @@ class Trainer:
         targets are fixed, so an ancestor's advantages keep sharpening on every later
         rollout while its values stay frozen.
         Both forms add to the policy's advantage the ancestors' GAE, each against its
-        frozen critic, weighted by ``problem.tie`` (the roots-first tie-break); the
-        critic's targets stay the phase's own.
+        frozen critic, weighted by ``problem.tie`` (the roots-first tie-break), each
+        step's share bounded by ``problem.tie_bound``; the critic's targets stay the
+        phase's own.
         """
         cfg, prob = self.config, self.problem
         pick = jax.nn.one_hot(phase, prob.n_phases)
@@ -379,9 +380,10 @@ class Trainer:
         advantage, target = lagrangian_advantages(
             cfg.advantage, reward, v, next_v, penalty, jnp.asarray(prob.beta)[phase],
             rollout.terminated, done, cfg.gamma, cfg.gae_lambda)
-        if prob.tie.any():  # the ancestors' GAE: their one-step advantages, discounted
-            ancestral = discounted_cumsum(adv_all, cfg.gamma * cfg.gae_lambda, done[..., None])
-            advantage = advantage + ancestral @ jnp.asarray(prob.tie)[phase]
+        if prob.tie.any():  # the ancestors' one-step advantages, bounded, then discounted
+            bound = jnp.asarray(prob.tie_bound)[phase]
+            step = jnp.clip(adv_all @ jnp.asarray(prob.tie)[phase], -bound, bound)
+            advantage = advantage + discounted_cumsum(step, cfg.gamma * cfg.gae_lambda, done)
         batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantage, target,
                       q_target, rollout.allowed, 1.0 - rollout.explore)
         batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
