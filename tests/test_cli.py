@@ -199,3 +199,52 @@ def test_train_flags_reach_the_run_config_and_bad_values_are_one_line(tmp_path, 
         assert main(["train", "--map", "small", "--out", str(tmp_path / "x"), *args]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
+
+
+def test_solve_continuous_gives_the_reference_and_its_discretisation_error():
+    out = run("solve", "--dynamics", "continuous", "--action", "heading", "--dag", "M>A>G",
+              "--slack", "100,0", "--json")
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert (data["dynamics"], data["action"], data["resolution"]) == ("continuous", "heading", 4)
+    assert data["path"] == {"reaches_goal": True, "enters_avoid": False,
+                            "ends_in_monitor": False}
+    # The hallway detour at half a cell per step, twice as long as the grid's 28 moves
+    # (diagonals shorten it): about -39.7, within 0.05 of the finer lattice's.
+    assert -41 < data["policy_values"]["goal"] < -38
+    assert max(data["discretisation_error"].values()) < 0.05
+
+
+@pytest.mark.parametrize("args, message", [
+    (["solve", "--action", "heading"], "--action and --resolution are options of continuous"),
+    (["solve", "--dynamics", "continuous", "--resolution", "5"], "--resolution must be an even"),
+    (["train", "--dynamics", "continuous", "--slip", "0.1", "--out", "x"],
+     "slip is not an option of continuous dynamics"),
+    (["train", "--noise", "0.1", "--out", "x"], "noise is not an option of grid dynamics"),
+    (["train", "--dynamics", "continuous", "--noise", "-1", "--out", "x"],
+     "noise must be a finite number >= 0")])
+def test_dynamics_options_are_checked_in_one_line(args, message, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tpo: error: ") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_train_continuous_writes_a_run_judged_against_the_reference(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["train", "--map", "small", "--dynamics", "continuous", "--action", "heading",
+                 "--dag", "A>G", "--slack", "100", "--steps", str(4 * 2048),
+                 "--episodes", "4", "--quiet", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "LAR-correct at value level (5 %)" in printed and "reference" in printed
+    config = (out / "config.toml").read_text()
+    assert 'dynamics = "continuous"' in config and 'action = "heading"' in config
+    assert "slip" not in config
+    result = json.loads((out / "eval.json").read_text())
+    assert set(result) >= {"mc", "mc_noise_free", "reference", "lar_correct", "path",
+                           "path_matches"}
+    assert result["reference"]["path"]["reaches_goal"]
+    assert set(result["reference"]["floors"]) == {"avoid"}
+    assert main(["eval", str(out), "--episodes", "2"]) == 0
+    assert json.loads(capsys.readouterr().out)["reference"] == result["reference"]

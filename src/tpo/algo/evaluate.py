@@ -1,5 +1,7 @@
-"""Evaluating a policy: Monte Carlo returns on a JAX env, and exact values where
-the env has a tabular model (the ground truth of :mod:`tpo.tabular`).
+"""Evaluating a policy: Monte Carlo returns on a JAX env, exact values where the
+env has a tabular model (the ground truth of :mod:`tpo.tabular`), and for the
+continuous env a judgement against its finite reference
+(:mod:`tpo.envs.continuous_model`).
 
 Free functions over a *policy function* ``policy(params, obs) -> Distribution``
 (e.g. :meth:`tpo.algo.train.Trainer.policy`), as SB3's ``evaluate_policy``.
@@ -16,6 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo.distributions import Distribution
+from tpo.envs.continuous import ContinuousNav
+from tpo.envs.continuous_model import continuous_model, path_category
+from tpo.envs.spec import from_spec
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import Judge, evaluate_policy, softmax, solve_lar
 
@@ -90,3 +95,59 @@ def summarize(returns: np.ndarray, objectives: tuple[str, ...]) -> dict[str, dic
     """Mean and standard deviation of ``[N, k]`` returns, by objective."""
     return {n: {"mean": float(returns[:, i].mean()), "std": float(returns[:, i].std())}
             for i, n in enumerate(objectives)}
+
+
+CONTINUOUS_TOL = 0.05  # the continuous verdict's relative tolerance (issue 16)
+
+
+def reference_evaluation(policy: Policy, params: Any, env: ContinuousNav,
+                         graph: ObjectiveGraph, gamma: float) -> dict[str, Any]:
+    """A continuous policy judged against the env's finite reference: the
+    noise-free greedy policy's discounted return (one episode: it is
+    deterministic; run until the discount makes the rest negligible) beside the
+    reference's LAR solution (relaxed if infeasible), the LAR-correct verdict at
+    value level (the leaf within 5 % (or 0.5) of the reference's ``V*_leaf`` or
+    above it; every ancestor at or above its floor less 5 %), and the path's
+    category beside the reference path's."""
+    ref = continuous_model(env, gamma)
+    lar = solve_lar(ref.model, graph, relax=True)
+    judge = Judge(lar)
+    # Noise-free, and long enough that the discounted return is the reference's
+    # infinite-horizon value to 1e-4 of its scale (a step limit is no part of it).
+    horizon = int(np.ceil(np.log(1e-4) / np.log(gamma))) if gamma > 0 else 1
+    spec = env.to_spec()
+    quiet = from_spec({**spec, "noise": 0.0, "max_steps": max(spec["max_steps"], horizon)})
+    run = jax.jit(partial(greedy_path, policy, env=quiet, gamma=gamma))
+    positions, alive, returns = map(np.asarray, run(params))
+    values = dict(zip(env.objectives, map(float, returns), strict=True))
+    learned = path_category(env.navmap, positions[alive])
+    reference = ref.category(lar.policy)
+    return {"mc_noise_free": values,
+            "reference": {"values": lar.start_values(),
+                          "policy_values": lar.start_policy_values(),
+                          "feasible": lar.feasible, "floors": judge.floors,
+                          "resolution": ref.resolution, "path": reference},
+            "lar_correct": judge.lar_correct(values, CONTINUOUS_TOL),
+            "path": learned, "path_matches": learned == reference}
+
+
+def greedy_path(policy: Policy, params: Any, env: ContinuousNav, gamma: float
+                ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The greedy policy's episode on ``env`` from its start: positions
+    ``[T + 1, 2]``, whether the robot is still there at each ``[T + 1]`` (false
+    after the goal), and the discounted return ``[k]``."""
+    obs, state = env.reset(jax.random.key(0), env.params)
+
+    def body(carry, key):
+        obs, state, alive, disc_ret, disc = carry
+        obs, nxt, reward, term, trunc = env.step_env(key, state, policy(params, obs).mode(),
+                                                     env.params)
+        disc_ret = disc_ret + alive * disc * reward
+        alive_next = alive * (1.0 - (term | trunc))
+        return (obs, nxt, alive_next, disc_ret, disc * gamma), (nxt.pos, alive * 1.0)
+
+    init = (obs, state, jnp.float32(1), jnp.zeros(len(env.objectives)), jnp.float32(1))
+    (_, _, _, disc_ret, _), (pos, alive) = jax.lax.scan(
+        body, init, jax.random.split(jax.random.key(0), int(env.params.max_steps)))
+    positions = jnp.concatenate([state.pos[None], pos])
+    return positions, jnp.concatenate([jnp.ones(1, bool), alive > 0]), disc_ret

@@ -15,12 +15,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo.config import TPOConfig
-from tpo.algo.evaluate import exact_evaluation, monte_carlo, summarize
+from tpo.algo.evaluate import exact_evaluation, monte_carlo, reference_evaluation, summarize
 from tpo.algo.guard import check_finite
 from tpo.algo.persist import read_model, restore_state, save_model
 from tpo.algo.phases import Problem
 from tpo.algo.runners import HostRunner, Runner, jax_runner
 from tpo.algo.train import Trainer, TrainState
+from tpo.envs.continuous import ContinuousNav
 from tpo.envs.gym_adapter import EnvFactory, HostEnv
 from tpo.envs.spec import Env, from_spec, make_env
 from tpo.errors import DamagedModel, TPOError
@@ -165,7 +166,9 @@ class TPO:
         mean and std by objective) and, for grid maps, the exact judgement
         (:func:`tpo.algo.evaluate.exact_evaluation`): exact values of the greedy and
         stochastic policy, LAR's solution of the same problem, and the verdicts
-        ``lar_correct``, ``strict`` and ``same_values``."""
+        ``lar_correct``, ``strict`` and ``same_values``; for the continuous env, the
+        judgement against its finite reference
+        (:func:`tpo.algo.evaluate.reference_evaluation`)."""
         state, trainer = self._need_state(), self._need_trainer()
         gamma, objectives = self.config.gamma, self.env.objectives
         acting = trainer.acting(state, trainer.slack_array())
@@ -186,6 +189,9 @@ class TPO:
         if hasattr(self.eval_env, "tabular"):
             result.update(exact_evaluation(trainer.policy, acting, self.eval_env, self.graph,
                                            gamma))
+        elif isinstance(self.eval_env, ContinuousNav):
+            result.update(reference_evaluation(trainer.policy, acting, self.eval_env,
+                                               self.graph, gamma))
         return result
 
     # ----------------------------------------------------------- persistence

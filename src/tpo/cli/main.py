@@ -84,6 +84,12 @@ def cmd_maps(args: argparse.Namespace) -> int:
 # -------------------------------------------------------------------- solve
 def cmd_solve(args: argparse.Namespace) -> int:
     plot = check_plot_file(args.plot, args.force) if args.plot else None
+    if args.dynamics == "continuous":
+        if plot or args.slip:
+            raise UsageError("--plot and --slip are options of grid dynamics")
+        return solve_continuous(args)
+    if args.action or args.resolution:
+        raise UsageError("--action and --resolution are options of continuous dynamics")
     navmap = load_map(args.map)
     grid = grid_model(navmap, gamma=args.gamma, slip=args.slip)
     graph = ObjectiveGraph.parse(args.dag, parse_slack(args.slack), objectives=OBJECTIVES,
@@ -108,6 +114,45 @@ def cmd_solve(args: argparse.Namespace) -> int:
     return 0
 
 
+def solve_continuous(args: argparse.Namespace) -> int:
+    """The continuous env's finite reference (:mod:`tpo.envs.continuous_model`) solved
+    at ``--resolution`` and at twice it, the difference being its discretisation
+    error."""
+    from tpo.envs import ContinuousNav
+    from tpo.envs.continuous_model import continuous_model
+
+    resolution = args.resolution or 4
+    if resolution < 2 or resolution % 2:
+        raise UsageError(f"--resolution must be an even number >= 2, got {resolution}")
+    navmap = load_map(args.map)
+    env = ContinuousNav(navmap, action=args.action or "velocity")
+    graph = ObjectiveGraph.parse(args.dag, parse_slack(args.slack), objectives=OBJECTIVES,
+                                 slack_kind=args.slack_kind, gamma=args.gamma)
+    solved = []
+    for n in (resolution, 2 * resolution):
+        ref = continuous_model(env, gamma=args.gamma, resolution=n)
+        sol = solve_lar(ref.model, graph, relax=args.relax)
+        solved.append((ref, sol))
+    (ref, sol), (_, fine) = solved
+    error = {n: abs(v - fine.start_policy_values()[n])
+             for n, v in sol.start_policy_values().items()}
+    summary = {"map": navmap.name, "dynamics": "continuous", "action": env.action,
+               "resolution": resolution, **sol.summary(), "path": ref.category(sol.policy),
+               "discretisation_error": error,
+               "policy_values_at_double_resolution": fine.start_policy_values()}
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print_solution(navmap.name, sol, summary)
+    print(f"continuous {env.action} dynamics on a lattice of {resolution}x{resolution} points "
+          f"per cell; at {2 * resolution}x{2 * resolution}: "
+          + ", ".join(f"{n} {v:.3f} (differs by {error[n]:.3f})"
+                      for n, v in fine.start_policy_values().items()))
+    print("path (more likely than not): " + "; ".join(
+        f"{k.replace('_', ' ')}: {'yes' if v else 'no'}" for k, v in summary["path"].items()))
+    return 0
+
+
 def print_solution(name: str, sol: LARSolution, summary: dict) -> None:
     model = sol.model
     print(f"map {name}: {model.n_states} states, gamma {model.gamma:g}, DAG {sol.graph}")
@@ -118,6 +163,9 @@ def print_solution(name: str, sol: LARSolution, summary: dict) -> None:
         print(f"{n:<10} {own} {policy_values[n]:10.3f}")
     print("V*: each objective's own constrained optimum; V^pi: the leaf's greedy policy.")
     feasible = "yes" if sol.feasible else f"no, relaxed at {summary['relaxed_states']}"
+    if "path_length" not in summary:
+        print(f"feasible: {feasible}")
+        return
     end = "reaches the goal" if summary["reached_goal"] else "does not reach the goal"
     print(f"feasible: {feasible}; greedy path: {summary['path_length']} steps, {end}")
 
@@ -186,6 +234,9 @@ def _train(args: argparse.Namespace, run_dir: Path, spec: RunSpec, replaced) -> 
 def print_result(result: dict) -> None:
     """The learned greedy policy's values beside LAR's, and the three verdicts (exact,
     on a map); the greedy Monte Carlo returns elsewhere."""
+    if "reference" in result:
+        print_reference_result(result)
+        return
     if "exact" not in result:
         greedy = result["mc"]["greedy"]["discounted"]
         print(f"{'objective':<10} {'greedy return (discounted, Monte Carlo)':>40}")
@@ -205,6 +256,30 @@ def print_result(result: dict) -> None:
           "objective's own optimum; floor: the least LAR allows an ancestor")
     relaxed = "" if lar["feasible"] else " (infeasible: judged against the relaxed solution)"
     print(f"{verdicts}{relaxed}")
+
+
+def print_reference_result(result: dict) -> None:
+    """A continuous run: the noise-free greedy return beside the finite reference's
+    LAR values, the value-level verdict and the paths' categories."""
+    ref, learned = result["reference"], result["mc_noise_free"]
+    noisy = result["mc"]["greedy"]["discounted"]
+    print(f"{'objective':<10} {'learned':>10} {'with noise':>10} {'reference':>10} {'V*':>10} "
+          f"{'floor':>10}")
+    for name, value in learned.items():
+        star, floor = ref["values"].get(name), ref["floors"].get(name)
+        print(f"{name:<10} {value:10.3f} {noisy[name]['mean']:10.3f} "
+              f"{ref['policy_values'][name]:10.3f} "
+              + " ".join(f"{'-' if v is None else f'{v:.3f}':>10}" for v in (star, floor)))
+    print("learned: discounted return of the greedy policy without noise (with noise: the "
+          f"training noise, mean of Monte Carlo episodes); reference: LAR on a lattice of "
+          f"{ref['resolution']}x{ref['resolution']} points per cell (tpo solve --dynamics "
+          "continuous)")
+    paths = "; ".join(f"{key.replace('_', ' ')}: {'yes' if result['path'][key] else 'no'}"
+                      f" (reference {'yes' if ref['path'][key] else 'no'})"
+                      for key in result["path"])
+    relaxed = "" if ref["feasible"] else " (infeasible: judged against the relaxed solution)"
+    print(f"LAR-correct at value level (5 %): {'yes' if result['lar_correct'] else 'no'}"
+          f"{relaxed}; path: {paths}")
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -312,7 +387,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--slack-kind", choices=("local", "global"), default="local",
                    help="local eta (default) or global delta = eta / (1 - gamma)")
     p.add_argument("--gamma", type=float, default=0.99)
-    p.add_argument("--slip", type=float, default=0.0, help="slip probability (default 0)")
+    p.add_argument("--slip", type=float, default=0.0, help="grid: slip probability (default 0)")
+    p.add_argument("--dynamics", choices=("grid", "continuous"), default="grid",
+                   help="grid (default) or continuous: the continuous env's finite "
+                        "reference, solved at --resolution and twice it")
+    p.add_argument("--action", choices=("velocity", "heading"),
+                   help="continuous: the action kind (default velocity)")
+    p.add_argument("--resolution", type=int,
+                   help="continuous: lattice points per cell along each axis, even "
+                        "(default 4)")
     p.add_argument("--relax", action="store_true",
                    help="relax infeasible states instead of failing")
     p.add_argument("--json", action="store_true", help="print one JSON object")

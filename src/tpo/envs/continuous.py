@@ -14,6 +14,10 @@ Rewards follow the grid's per-step semantics on the cell where the step
 starts (goal -1; avoid -1 inside, -1 per bump; monitor +1 inside, -1 per bump)
 and entering the goal cell ends the episode.
 
+``random_start=True`` starts episodes at a uniformly random point of a uniformly
+random non-goal free cell (exploring starts for training, as the grid's);
+otherwise at the centre of the map's start cell.
+
 Observations (``4 + n_beams`` numbers): the position scaled to ``[0, 1]``,
 ``n_beams`` range readings to the nearest wall along evenly spaced directions
 (divided by ``max_range``), in-avoid and in-monitor flags.
@@ -48,7 +52,8 @@ class ContinuousParams:
     walls: jax.Array  # bool [H, W]
     avoid: jax.Array  # bool [H, W]
     monitor: jax.Array  # bool [H, W]
-    start: jax.Array  # float32 [2]
+    starts: jax.Array  # float32 [N, 2] the corner of every start cell
+    jitter: jax.Array  # float32 [] 1 with random starts (anywhere in the cell), else 0
     goal: jax.Array  # int32 [2], the goal cell
     max_steps: jax.Array  # int32 []
     speed: jax.Array  # float32 []
@@ -68,7 +73,7 @@ class ContinuousNav(JaxEnv):
 
     def __init__(self, navmap: NavMap, action: str = "velocity", speed: float = 0.5,
                  noise: float = 0.0, n_beams: int = 8, max_range: float = 6.0,
-                 max_steps: int | None = None) -> None:
+                 max_steps: int | None = None, random_start: bool = False) -> None:
         if action not in ACTION_KINDS:
             raise MapError(f"unknown action kind '{action}'; choose velocity or heading")
         if not 0 < speed <= 1:
@@ -80,12 +85,16 @@ class ContinuousNav(JaxEnv):
         steps = check_max_steps(int(np.ceil(navmap.max_steps / speed)) if max_steps is None
                                 else max_steps)
         self.navmap, self.action, self.max_range = navmap, action, float(max_range)
+        self.random_start = random_start
+        free = ~navmap.walls
+        free[navmap.goal] = False
+        starts = np.argwhere(free) if random_start else np.array([navmap.start])
         self.action_space = (gym.spaces.Discrete(8) if action == "heading"
                              else gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self.params = ContinuousParams(
             walls=jnp.asarray(navmap.walls), avoid=jnp.asarray(navmap.avoid_mask),
             monitor=jnp.asarray(navmap.monitor_mask),
-            start=jnp.asarray(navmap.start, jnp.float32) + 0.5,
+            starts=jnp.asarray(starts, jnp.float32), jitter=jnp.float32(random_start),
             goal=jnp.asarray(navmap.goal, jnp.int32), max_steps=jnp.asarray(steps, jnp.int32),
             speed=jnp.float32(speed), noise=jnp.float32(noise),
             beams=jnp.asarray(headings(n_beams)),
@@ -101,13 +110,17 @@ class ContinuousNav(JaxEnv):
         return {"kind": "continuous", "map": self.navmap.to_toml(), "action": self.action,
                 "speed": float(self.params.speed), "noise": float(self.params.noise),
                 "n_beams": int(self.params.beams.shape[0]), "max_range": self.max_range,
-                "max_steps": int(self.params.max_steps)}
+                "max_steps": int(self.params.max_steps), "random_start": self.random_start}
 
     # ------------------------------------------------------------ pure JAX API
     @staticmethod
     def reset(key: jax.Array, params: ContinuousParams) -> tuple[jax.Array, ContinuousState]:
-        del key
-        state = ContinuousState(pos=params.start, time=jnp.zeros((), jnp.int32))
+        """The first observation and state of an episode: the centre of the map's
+        start cell, or with ``random_start`` a random point of a random start cell."""
+        k_cell, k_point = jax.random.split(key)
+        corner = params.starts[jax.random.randint(k_cell, (), 0, params.starts.shape[0])]
+        offset = 0.5 + params.jitter * (jax.random.uniform(k_point, (2,)) * 0.98 - 0.49)
+        state = ContinuousState(pos=corner + offset, time=jnp.zeros((), jnp.int32))
         return ContinuousNav.observe(state, params), state
 
     @staticmethod

@@ -53,7 +53,8 @@ SPEC_KEYS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "grid": {"map": str, "slip": Number, "observation": str, "max_steps": int,
              "random_start": bool},
     "continuous": {"map": str, "action": str, "speed": Number, "noise": Number,
-                   "n_beams": int, "max_range": Number, "max_steps": int},
+                   "n_beams": int, "max_range": Number, "max_steps": int,
+                   "random_start": bool},
     "gym": {"id": str, "objectives": list},
 }
 
@@ -72,9 +73,11 @@ def check_spec(spec: Any) -> None:
 def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int = 1,
               trust_module: str | None = None) -> Env:
     """The env of ``spec`` (an env's ``to_spec()``, checked by :func:`check_spec`);
-    ``evaluation`` drops a grid's random starts; a Gymnasium env gets ``num_envs``
+    ``evaluation`` drops a navigation env's random starts; a Gymnasium env gets ``num_envs``
     copies and is rebuilt without importing any module the spec names, unless it
     is ``trust_module`` (:func:`tpo.envs.gym_adapter.env_factory`)."""
+    if isinstance(spec, dict) and spec.get("kind") == "continuous":
+        spec = {"random_start": False, **spec}  # saved before continuous random starts
     check_spec(spec)
     spec = dict(spec)
     kind = spec.pop("kind")
@@ -82,9 +85,9 @@ def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int =
         return HostEnv(env_factory(spec["id"], trust_module=trust_module or False),
                        spec["objectives"], num_envs, env_id=spec["id"])
     navmap = parse_map(spec.pop("map"))
+    if evaluation:
+        spec["random_start"] = False
     if kind == "grid":
-        if evaluation:
-            spec["random_start"] = False
         return GridNav(navmap, **spec)
     if kind == "continuous":
         return ContinuousNav(navmap, **spec)

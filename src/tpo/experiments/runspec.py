@@ -14,6 +14,9 @@ import tomli_w
 from tpo.algo.config import TPOConfig
 from tpo.errors import TPOError
 
+DYNAMICS = ("grid", "continuous")
+ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: no JAX here)
+
 if TYPE_CHECKING:
     from tpo.algo import TPO
 
@@ -37,11 +40,17 @@ class RunSpec:
     """PRNG seed of the parameters, the run and a Gymnasium env's resets"""
     steps: int = 1_000_000
     """environment steps in all"""
+    dynamics: str = field(default="grid", metadata={"choices": DYNAMICS})
+    """grid (cell moves) or continuous (a point robot with range sensors) on the map"""
     slip: float = 0.0
-    """probability that a grid move goes in another direction"""
+    """grid: probability that a move goes in another direction"""
     observation: str = field(default="factored",
                              metadata={"choices": ("factored", "onehot", "coords")})
     """grid observation: factored, onehot or coords"""
+    action: str = field(default="velocity", metadata={"choices": ACTION_KINDS})
+    """continuous: velocity (a 2-vector) or heading (one of 8 compass headings)"""
+    noise: float = 0.0
+    """continuous: standard deviation of the Gaussian noise on every move, in cells"""
     env: str = field(default="", metadata={"metavar": "PACKAGE:ENV_ID"})
     """a Gymnasium env with vector rewards, PACKAGE:ENV_ID, instead of a map (e.g.
     mo-gymnasium:deep-sea-treasure-v0)"""
@@ -54,8 +63,8 @@ class RunSpec:
         """Run fields (defaults as declared) plus any TPOConfig field; ``saved``: the
         settings of a run that tpo wrote (:meth:`TPOConfig.from_saved`)."""
         settings = dict(settings)
-        run = {f.name: settings.pop(f.name, f.default) for f in fields(cls)
-               if f.name != "config"}
+        defaults = {f.name: f.default for f in fields(cls) if f.name != "config"}
+        run = {name: settings.pop(name, default) for name, default in defaults.items()}
         slack = run["slack"]
         slack = [slack] if isinstance(slack, int | float) else slack
         try:
@@ -70,11 +79,19 @@ class RunSpec:
                 raise RunError(f"{name} must be an integer, got {run[name]!r}")
         if not 0 <= run["seed"] < 2**32:
             raise RunError(f"seed must be an integer from 0 to 2**32 - 1, got {run['seed']}")
-        for name in ("map", "dag", "observation", "env"):
+        for name in ("map", "dag", "observation", "env", "dynamics", "action"):
             if not isinstance(run[name], str):
                 raise RunError(f"{name} must be a string, got {run[name]!r:.60}")
-        if isinstance(run["slip"], bool) or not isinstance(run["slip"], int | float):
-            raise RunError(f"slip must be a number, got {run['slip']!r:.60}")
+        for name in ("slip", "noise"):
+            if isinstance(run[name], bool) or not isinstance(run[name], int | float):
+                raise RunError(f"{name} must be a number, got {run[name]!r:.60}")
+        if run["dynamics"] not in DYNAMICS:
+            raise RunError(f"dynamics must be one of {', '.join(DYNAMICS)}, "
+                           f"got {run['dynamics']!r:.60}")
+        other = {"grid": ("action", "noise"), "continuous": ("slip", "observation")}
+        given = [n for n in other[run["dynamics"]] if run[n] != defaults[n]]
+        if given:
+            raise RunError(f"{given[0]} is not an option of {run['dynamics']} dynamics")
         objectives = run["objectives"]
         if isinstance(objectives, str):
             objectives = [o.strip() for o in objectives.split(",") if o.strip()]
@@ -85,8 +102,9 @@ class RunSpec:
             raise RunError(f"name the reward components of env '{run['env']}' in order: "
                            "--objectives a,b,...")
         return cls(map=str(run["map"]), dag=str(run["dag"]), slack=slack, seed=run["seed"],
-                   steps=run["steps"], slip=float(run["slip"]),
-                   observation=str(run["observation"]), env=str(run["env"]),
+                   steps=run["steps"], dynamics=run["dynamics"], slip=float(run["slip"]),
+                   observation=str(run["observation"]), action=run["action"],
+                   noise=float(run["noise"]), env=str(run["env"]),
                    objectives=tuple(objectives),
                    config=(TPOConfig.from_saved if saved else TPOConfig.from_dict)(settings))
 
@@ -99,8 +117,13 @@ class RunSpec:
             raise RunError(f"cannot read {path}: {err}") from None
 
     def to_toml(self) -> str:
-        problem = ({"env": self.env, "objectives": list(self.objectives)} if self.env else
-                   {"map": self.map, "slip": self.slip, "observation": self.observation})
+        if self.env:
+            problem = {"env": self.env, "objectives": list(self.objectives)}
+        elif self.dynamics == "continuous":
+            problem = {"map": self.map, "dynamics": self.dynamics, "action": self.action,
+                       "noise": self.noise}
+        else:
+            problem = {"map": self.map, "slip": self.slip, "observation": self.observation}
         return tomli_w.dumps({**problem, "dag": self.dag, "slack": list(self.slack),
                               "seed": self.seed, "steps": self.steps,
                               **self.config.to_dict()})
@@ -114,14 +137,18 @@ class RunSpec:
         Trainer(model.env, model.graph, self.config, self.steps)
 
     def model(self) -> TPO:
-        """A fresh (untrained) model of this run; on a map, training starts from
-        random starts."""
+        """A fresh (untrained) model of this run; on a map, training episodes start
+        anywhere (random starts), evaluation at the map's start."""
         from tpo.algo import TPO
-        from tpo.envs import GridNav, load_map
+        from tpo.envs import ContinuousNav, GridNav, load_map
 
         if self.env:
             return TPO(self.env, self.dag, slack=list(self.slack), config=self.config,
                        seed=self.seed, objectives=self.objectives)
-        env = GridNav(load_map(self.map), slip=self.slip, observation=self.observation,
-                      random_start=True)
+        if self.dynamics == "continuous":
+            env = ContinuousNav(load_map(self.map), action=self.action, noise=self.noise,
+                                random_start=True)
+        else:
+            env = GridNav(load_map(self.map), slip=self.slip, observation=self.observation,
+                          random_start=True)
         return TPO(env, self.dag, slack=list(self.slack), config=self.config, seed=self.seed)

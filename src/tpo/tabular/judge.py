@@ -28,9 +28,9 @@ from tpo.tabular.model import TabularTMDP
 REL_TOL, ABS_TOL = 0.02, 0.5
 
 
-def tolerance(reference: np.ndarray | float) -> np.ndarray:
-    """``max(0.02 |v|, 0.5)`` of a reference value ``v``."""
-    return np.maximum(REL_TOL * np.abs(reference), ABS_TOL)
+def tolerance(reference: np.ndarray | float, rel: float = REL_TOL) -> np.ndarray:
+    """``max(rel |v|, 0.5)`` of a reference value ``v`` (``rel`` 0.02 by default)."""
+    return np.maximum(rel * np.abs(reference), ABS_TOL)
 
 
 def floors(solution: LARSolution) -> dict[str, np.ndarray]:
@@ -102,13 +102,21 @@ class Judge:
         policy = np.asarray(policy)
         values = dict(zip(model.objectives, map(float, evaluate_policy(model, policy)[start]),
                           strict=True))
-        optimum, reference = self.optimum, self.reference
-        correct = values[graph.leaf] >= optimum - tolerance(optimum) and all(
-            values[w] >= f - tolerance(f) for w, f in self.floors.items())
+        reference = self.reference
+        correct = self.lar_correct(values)
         on_way = reachable(model, policy) & ~model.terminal
         inside = sol.allowed[graph.leaf][np.arange(model.n_states), policy]
         outside = tuple(int(s) for s in np.flatnonzero(on_way & ~inside))
         same = all(abs(values[n] - reference[n]) <= tolerance(reference[n])
                    for n in graph.objectives)
         return Verdict(bool(correct), bool(correct and not outside), bool(same), sol.feasible,
-                       values, optimum, self.floors, reference, outside)
+                       values, self.optimum, self.floors, reference, outside)
+
+    def lar_correct(self, values: dict[str, float], rel: float = REL_TOL) -> bool:
+        """LAR-correct by value alone: the leaf's start value ``values`` within
+        ``tolerance(., rel)`` of ``V*_leaf(s0)`` or above it, every ancestor's at
+        least its floor less that tolerance (for values estimated elsewhere, e.g.
+        by Monte Carlo on the continuous env that this solution approximates)."""
+        leaf = self.solution.graph.leaf
+        return bool(values[leaf] >= self.optimum - tolerance(self.optimum, rel) and all(
+            values[w] >= f - tolerance(f, rel) for w, f in self.floors.items()))
