@@ -1,5 +1,7 @@
 """End-to-end training throughput: TPO (3 objectives) vs plain PPO in the same code vs
-a CleanRL-style PyTorch PPO vs Stable-Baselines3 PPO, on the same grid map; and TPO's
+a CleanRL-style PyTorch PPO vs Stable-Baselines3 PPO, on the same grid map; TPO on the
+continuous env of the same map (``tpo-velocity``, ``tpo-heading``: range sensors and
+collision checks every step) against TPO on the grid; and TPO's
 host-stepped path (``tpo-host``: the same map as a NumPy Gymnasium env with vector
 rewards; ``tpo-host-gym``: the registered ``tpo/GridNav-home-v0``) vs its JAX path.
 
@@ -155,18 +157,20 @@ def timed(warm_up, run, state, steps: int) -> dict:
 
 
 # ------------------------------------------------------------------------ JAX
-def run_jax(dag: str, n_envs: int, updates: int, seeds: int = 1) -> dict:
-    """TPO's trainer; with ``seeds`` > 1, that many runs vmapped in one program
-    (the steps of all of them counted)."""
+def run_jax(dag: str, n_envs: int, updates: int, seeds: int = 1, action: str | None = None
+            ) -> dict:
+    """TPO's trainer on the grid, or with ``action`` on the continuous env of the same
+    map (velocity or heading actions); with ``seeds`` > 1, that many runs vmapped in
+    one program (the steps of all of them counted)."""
     import jax
     import jax.numpy as jnp
 
     from tpo.algo import TPOConfig, Trainer
-    from tpo.envs import load_map
-    from tpo.envs.grid import GridNav
+    from tpo.envs import ContinuousNav, GridNav, load_map
     from tpo.graph import ObjectiveGraph
 
-    env = GridNav(load_map(MAP), random_start=True)
+    env = (GridNav(load_map(MAP), random_start=True) if action is None
+           else ContinuousNav(load_map(MAP), action=action, random_start=True))
     config = TPOConfig(num_envs=n_envs, num_steps=NUM_STEPS)
     graph = ObjectiveGraph.parse(dag, 0.0, objectives=env.objectives)
     n_phases = len(graph.order)
@@ -315,6 +319,8 @@ LEARNERS = {
     "tpo": lambda n, u: run_jax("M>A>G", n, u),
     "ppo": lambda n, u: run_jax("goal", n, u),
     "tpo-x8": lambda n, u: run_jax("M>A>G", n, u, seeds=8),
+    "tpo-velocity": lambda n, u: run_jax("M>A>G", n, u, action="velocity"),
+    "tpo-heading": lambda n, u: run_jax("M>A>G", n, u, action="heading"),
     "tpo-host": run_host,
     "tpo-host-gym": lambda n, u: run_host(n, u, "tpo/GridNav-home-v0"),
     "torch": run_torch,
@@ -346,7 +352,8 @@ def main() -> None:
         return
     # steps/s (per run), to size the measurements
     guess = {"tpo": 60e3, "ppo": 70e3, "torch": 15e3, "sb3": 4e3, "sb3-vec": 15e3,
-             "tpo-x8": 15e3, "tpo-host": 8e3, "tpo-host-gym": 2e3}
+             "tpo-x8": 15e3, "tpo-velocity": 40e3, "tpo-heading": 40e3, "tpo-host": 8e3,
+             "tpo-host-gym": 2e3}
     rows = {}
     for n_envs in args.envs:
         for name in args.learners:
@@ -365,7 +372,8 @@ def main() -> None:
         r = {k[0]: v for k, v in rows.items() if k[1] == n_envs}
         ratios = [f"{a}/{b} {r[a] / r[b]:.2f}x" for a, b in
                   (("tpo", "ppo"), ("tpo", "torch"), ("tpo", "sb3"), ("tpo", "sb3-vec"),
-                   ("ppo", "torch"), ("tpo-x8", "sb3"), ("tpo-host", "tpo"),
+                   ("ppo", "torch"), ("tpo-x8", "sb3"), ("tpo-velocity", "tpo"),
+                   ("tpo-heading", "tpo"), ("tpo-host", "tpo"),
                    ("tpo-host-gym", "tpo"))
                   if a in r and b in r]
         print(f"{n_envs:4d} envs: " + ", ".join(ratios))
