@@ -86,15 +86,13 @@ class ContinuousNav(JaxEnv):
                                 else max_steps)
         self.navmap, self.action, self.max_range = navmap, action, float(max_range)
         self.random_start = random_start
-        free = ~navmap.walls
-        free[navmap.goal] = False
-        starts = np.argwhere(free) if random_start else np.array([navmap.start])
         self.action_space = (gym.spaces.Discrete(8) if action == "heading"
                              else gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self.params = ContinuousParams(
             walls=jnp.asarray(navmap.walls), avoid=jnp.asarray(navmap.avoid_mask),
             monitor=jnp.asarray(navmap.monitor_mask),
-            starts=jnp.asarray(starts, jnp.float32), jitter=jnp.float32(random_start),
+            starts=jnp.asarray(navmap.start_cells(random_start), jnp.float32),
+            jitter=jnp.float32(random_start),
             goal=jnp.asarray(navmap.goal, jnp.int32), max_steps=jnp.asarray(steps, jnp.int32),
             speed=jnp.float32(speed), noise=jnp.float32(noise),
             beams=jnp.asarray(headings(n_beams)),

@@ -18,7 +18,7 @@ noise-free): its moves, collisions, rewards and goal test.
   goal cell ends on a goal point.
 
 How far it is from the continuous problem is measured, not assumed: solve at two
-resolutions (:func:`discretisation_error`).
+resolutions (``tpo solve --dynamics continuous`` prints the difference).
 """
 
 from __future__ import annotations
@@ -69,7 +69,8 @@ class ContinuousModel:
         monitor = navmap.monitor_mask[cells[:, 0], cells[:, 1]]
         moves = model.policy_matrix(policy).T.tocsr()
         absorbing = (moves.multiply((~avoid)[None, :]) + sp.diags(avoid.astype(float))).tocsr()
-        here = np.eye(model.n_states)[model.start]
+        here = np.zeros(model.n_states)
+        here[model.start] = 1.0
         entered = here.copy()
         for _ in range(int(self.env.params.max_steps) if steps is None else steps):
             here, entered = moves @ here, absorbing @ entered

@@ -95,9 +95,6 @@ class GridNav(JaxEnv):
         self.observation = observation
         table = observation_table(navmap, observation)
         steps = check_max_steps(navmap.max_steps if max_steps is None else max_steps)
-        free = ~navmap.walls
-        free[navmap.goal] = False
-        starts = np.argwhere(free) if random_start else np.array([navmap.start])
         self.random_start = random_start
         self.action_space = gym.spaces.Discrete(len(MOVES))
         self.params = GridParams(
@@ -105,7 +102,7 @@ class GridNav(JaxEnv):
             monitor=jnp.asarray(navmap.monitor_mask), obs_table=jnp.asarray(table),
             start=jnp.asarray(navmap.start, jnp.int32), goal=jnp.asarray(navmap.goal, jnp.int32),
             max_steps=jnp.asarray(steps, jnp.int32), slip=jnp.asarray(slip, jnp.float32),
-            starts=jnp.asarray(starts, jnp.int32))
+            starts=jnp.asarray(navmap.start_cells(random_start), jnp.int32))
 
     @property
     def obs_shape(self) -> tuple[int]:

@@ -79,6 +79,15 @@ class NavMap:
     def n_free(self) -> int:
         return int((~self.walls).sum())
 
+    def start_cells(self, random_start: bool) -> np.ndarray:
+        """int ``[N, 2]``: the cells an episode may start in: every non-goal free cell
+        with ``random_start`` (exploring starts), else the map's start."""
+        if not random_start:
+            return np.array([self.start])
+        free = ~self.walls
+        free[self.goal] = False
+        return np.argwhere(free)
+
     def to_toml(self) -> str:
         """TOML text that :func:`parse_map` reads back to the same map."""
         rows = ["".join("#" if w else "." for w in row) for row in self.walls]
