@@ -136,7 +136,7 @@ def test_a_killed_sweep_resumes_from_its_checkpoint_to_the_same_result(tmp_path)
     # A checkpoint of another version (tpo 0.1's had no format) is named, not misread.
     ckpt.write_bytes(serialization.msgpack_serialize({"done": 4, "states": {}}))
     with pytest.raises(TPOError, match=r"written by another version of tpo \(format None; "
-                                       r"this version reads \d+\); delete it"):
+                                       r"this version reads \d+ to \d+\); delete it"):
         run_sweep(*args, chunk_updates=2, checkpoint=ckpt)
 
 

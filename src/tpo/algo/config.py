@@ -17,7 +17,7 @@ CONSTRAINTS = ("restriction", "penalty")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 #: fields added since tpo 0.2, and the value a config written before them meant: a
 #: saved model (or a run's config.toml) without the key was trained without the feature
-ADDED = {"margin": 0.0, "tie_break": 0.0}
+ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False}
 
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
@@ -86,6 +86,12 @@ class TPOConfig:
     each step's share at most tie_break of the leaf's reward range), so where the
     leaf is indifferent its policy follows its ancestors, as the tie rule's
     completion does (docs/design.md §2); 0 turns it off"""
+    select: bool = True
+    """end the run by choosing among the phases' final policies by their greedy Monte
+    Carlo returns: the leaf's objective first, then its ancestors roots first, among
+    the policies the leaf's constraint checks admit (the tie rule of docs/design.md
+    §2 applied to the policies the run has; a JAX env only); false keeps the leaf's
+    own policy"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of
@@ -147,7 +153,7 @@ class TPOConfig:
         if not isinstance(self.constraint, str) or self.constraint not in CONSTRAINTS:
             raise ConfigError(f"constraint must be one of {', '.join(CONSTRAINTS)}, "
                               f"got {self.constraint!r}")
-        for name in ("anneal_lr", "completion"):
+        for name in ("anneal_lr", "completion", "select"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if not isinstance(self.advantage, str) or self.advantage not in ADVANTAGE_FORMS:

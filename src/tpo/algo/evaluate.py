@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -49,10 +49,20 @@ def exact_evaluation(policy: Policy, params: Any, env: Any, graph: ObjectiveGrap
             "outside": list(verdict.outside)}
 
 
-def episode_returns(policy: Policy, params: Any, env: Any, keys: jax.Array, greedy: bool,
-                    gamma: float) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Undiscounted ``[N, k]`` and discounted ``[N, k]`` returns and lengths ``[N]`` of
-    one episode per key, from the env's reset until it terminates or truncates
+class Episodes(NamedTuple):
+    """One episode per key, time-major within it: ``[N, T, ...]`` with ``T`` the env's
+    step limit; steps after the episode's end are masked by ``alive``."""
+
+    obs: jax.Array  # s_t
+    next_obs: jax.Array  # s_{t+1}
+    reward: jax.Array  # [N, T, k]
+    terminated: jax.Array  # float: s_{t+1} is terminal
+    alive: jax.Array  # float: step t is part of the episode
+
+
+def episodes(policy: Policy, params: Any, env: Any, keys: jax.Array, greedy: bool
+             ) -> Episodes:
+    """One episode per key from the env's reset until it terminates or truncates
     (traceable: jit it, or vmap it over parameters)."""
 
     def episode(key):
@@ -60,25 +70,34 @@ def episode_returns(policy: Policy, params: Any, env: Any, keys: jax.Array, gree
         obs, state = env.reset(k_reset, env.params)
 
         def body(carry, key):
-            obs, state, alive, ret, disc_ret, disc, length = carry
+            obs, state, alive = carry
             k_act, k_env = jax.random.split(key)
             pi = policy(params, obs)
             action = pi.mode() if greedy else pi.sample(k_act)
-            obs, state, reward, term, trunc = env.step_env(k_env, state, action, env.params)
-            ret = ret + alive * reward
-            disc_ret = disc_ret + alive * disc * reward
-            length = length + alive
-            alive = alive * (1.0 - (term | trunc))
-            return (obs, state, alive, ret, disc_ret, disc * gamma, length), None
+            nxt, state, reward, term, trunc = env.step_env(k_env, state, action, env.params)
+            step = (obs, nxt, reward, term.astype(jnp.float32), alive)
+            return (nxt, state, alive * (1.0 - (term | trunc))), step
 
-        k = len(env.objectives)
-        init = (obs, state, jnp.float32(1), jnp.zeros(k), jnp.zeros(k), jnp.float32(1),
-                jnp.float32(0))
-        (_, _, _, ret, disc_ret, _, length), _ = jax.lax.scan(
-            body, init, jax.random.split(k_run, int(env.params.max_steps)))
-        return ret, disc_ret, length
+        _, steps = jax.lax.scan(body, (obs, state, jnp.float32(1)),
+                                jax.random.split(k_run, int(env.params.max_steps)))
+        return Episodes(*steps)
 
     return jax.vmap(episode)(keys)
+
+
+def discounted(values: jax.Array, alive: jax.Array, gamma: float) -> jax.Array:
+    """``sum_t gamma^t alive_t values_t`` over the time axis of ``[N, T, ...]``."""
+    weight = alive * gamma ** jnp.arange(alive.shape[1], dtype=jnp.float32)
+    return jnp.einsum("nt,nt...->n...", weight, values)
+
+
+def episode_returns(policy: Policy, params: Any, env: Any, keys: jax.Array, greedy: bool,
+                    gamma: float) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Undiscounted ``[N, k]`` and discounted ``[N, k]`` returns and lengths ``[N]`` of
+    :func:`episodes` (traceable)."""
+    ep = episodes(policy, params, env, keys, greedy)
+    return (jnp.einsum("nt,ntk->nk", ep.alive, ep.reward), discounted(ep.reward, ep.alive, gamma),
+            ep.alive.sum(1))
 
 
 def monte_carlo(policy: Policy, params: Any, env: Any, key: jax.Array, episodes: int,

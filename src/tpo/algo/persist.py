@@ -18,6 +18,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import serialization
 
 from tpo.algo.train import TrainState
@@ -25,7 +26,8 @@ from tpo.atomic import write_dir_atomic
 from tpo.errors import DamagedModel, TPOError
 from tpo.schema import check_table
 
-FORMAT = 5  # 5: model.json holds the SHA-256 of state.msgpack
+FORMAT = 6  # 5: model.json holds the SHA-256 of state.msgpack; 6: the phases' snapshots
+READS = (5, 6)  # a format-5 state's snapshots are its actor (nothing to choose among)
 
 
 def state_bytes(state: TrainState, **extra: Any) -> bytes:
@@ -40,11 +42,17 @@ def restore_state(template: TrainState, blob: bytes) -> tuple[TrainState, dict[s
     try:
         saved = serialization.msgpack_restore(blob)
         found = saved.pop("format", None)
-        if found != FORMAT:
+        if found not in READS:
             raise ValueError(f"written by another version of tpo (format {found!r}; this "
-                             f"version reads {FORMAT})")
+                             f"version reads {READS[0]} to {FORMAT})")
         like = template.replace(key=jax.random.key_data(template.key))
-        state = serialization.from_state_dict(like, saved.pop("state"))
+        data = saved.pop("state")
+        if found == 5:
+            axis = jnp.ndim(template.update)  # after a sweep's [slack, seed] axes
+            n = jax.tree.leaves(template.snapshots)[0].shape[axis]
+            data["snapshots"] = jax.tree.map(lambda x: np.stack([x] * n, axis),
+                                             data["params"]["actor"])
+        state = serialization.from_state_dict(like, data)
         for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(like),
                                      jax.tree.leaves(state), strict=True):
             if jnp.shape(want) != jnp.shape(got):
@@ -76,9 +84,9 @@ def read_model(path: str | Path) -> tuple[dict[str, Any], bytes]:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise DamagedModel(f"{path} is not a saved tpo model: {err}") from None
     found = meta.get("format") if isinstance(meta, dict) else None
-    if found != FORMAT:
+    if found not in READS:
         raise TPOError(f"{path}: unknown model format {found!r} "
-                       f"(this version reads {FORMAT})")
+                       f"(this version reads {READS[0]} to {FORMAT})")
     try:
         check_meta(meta)
     except TPOError as err:

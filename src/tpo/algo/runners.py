@@ -9,6 +9,8 @@ metrics stacked over them.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -21,13 +23,18 @@ from tpo.envs.gym_adapter import EnvError, HostEnv
 Runner = Callable[[TrainState, jax.Array, int, int], tuple[TrainState, dict]]
 
 
-def jax_runner(trainer: Trainer) -> Runner:
+def jax_runner(trainer: Trainer, task: Any = None) -> Runner:
     """``n`` updates by one jitted program per ``length`` (so a run's shorter last
-    chunk compiles nothing new); metrics of the ``n`` updates."""
+    chunk compiles nothing new); metrics of the ``n`` updates. The chunk that ends
+    the run also finishes it (:meth:`Trainer.finish` on the JAX env ``task``, by
+    default the training env)."""
     chunk = jax.jit(trainer.run_chunk, static_argnums=3)
+    finish = jax.jit(partial(trainer.finish, env=task))
 
     def run(state: TrainState, slack: jax.Array, n: int, length: int):
         state, rows = chunk(state, slack, jnp.int32(n), length)
+        if int(state.update) >= trainer.num_updates:
+            state = finish(state, slack)
         return state, jax.tree.map(lambda x: x[:n], rows)
 
     return run

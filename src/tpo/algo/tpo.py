@@ -118,7 +118,8 @@ class TPO:
                 episodes=jax.tree.map(jnp.zeros_like, state.episodes))
             self._fresh_env = False
         if self._run is None:
-            self._run = HostRunner(trainer, self.env) if self.host else jax_runner(trainer)
+            self._run = (HostRunner(trainer, self.env) if self.host
+                         else jax_runner(trainer, self.eval_env))
         slack = trainer.slack_array()
         done = int(state.update)
         while done < trainer.num_updates:

@@ -39,6 +39,7 @@ from flax import struct
 from tpo.algo.config import ConfigError, TPOConfig
 from tpo.algo.distributions import Categorical, Distribution
 from tpo.algo.episodes import EpisodeStats
+from tpo.algo.evaluate import discounted, episodes
 from tpo.algo.lagrangian import (
     admissible,
     ancestral_advantages,
@@ -56,9 +57,16 @@ from tpo.algo.networks import (
     scale_output,
 )
 from tpo.algo.phases import Acting, Problem, reward_ranges
+from tpo.algo.selection import choose, stack_snapshot
 from tpo.graph import ObjectiveGraph
 
 MAX_UPDATES = 2**31 - 1  # the update counter is an int32
+SELECT_EPISODES = 16  # greedy episodes per candidate at a run's end (Trainer.finish)
+#: candidates within this share of an objective's one-step reward range tie (half a step)
+SELECT_TOLERANCE = 0.5
+#: a candidate's penalty may exceed the leaf policy's by this many one-step reward ranges
+#: of the constrained parents (the learned critics' noise, docs/notes/tpo-learning.md)
+SELECT_PENALTY = 5.0
 
 
 @struct.dataclass
@@ -74,6 +82,7 @@ class TrainState:
     update: jax.Array  # int32 [], updates done
     value_norm: ValueNorm
     episodes: EpisodeStats
+    snapshots: dict  # the actor as each phase left it, every leaf [P, ...]
 
 
 class Rollout(NamedTuple):
@@ -195,7 +204,9 @@ class Trainer:
                           self.optimizer.init(params["critics"]), env_state, obs, k_run,
                           jnp.zeros((), jnp.int32), ValueNorm.init(self.problem.n_phases),
                           EpisodeStats.init(self.config.num_envs,
-                                            len(self.problem.objectives)))
+                                            len(self.problem.objectives)),
+                          jax.tree.map(lambda x: jnp.stack([x] * self.problem.n_phases),
+                                       params["actor"]))
 
     # -------------------------------------------------------------- policy
     def acting(self, state: TrainState, slack: jax.Array,
@@ -311,6 +322,8 @@ class Trainer:
         lr = jnp.asarray(self.learning_rate(state.update), jnp.float32)
         ent_coef = jnp.asarray(self.ent_coef(state.update), jnp.float32)
         state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr, ent_coef)
+        state = state.replace(snapshots=stack_snapshot(state.snapshots, phase,
+                                                       state.params["actor"]))
         excluded = 0.0 if rollout.allowed is None else 1.0 - rollout.allowed.mean()
         metrics = {"phase": phase, "lr": lr,
                    "penalty": penalty.mean(), "violation_rate": (penalty > 0).mean(),
@@ -356,24 +369,11 @@ class Trainer:
         """
         cfg, prob = self.config, self.problem
         pick = jax.nn.one_hot(phase, prob.n_phases)
-        # The critics see the whole rollout at once (one batched call, not one per step).
-        out = self.values(state, jnp.stack([rollout.obs, rollout.final_obs]))[..., 0]
-        value, next_value = out[0], out[1]  # [T, E, P]
-        rewards = rollout.reward[..., jnp.asarray(prob.reward)]  # [T, E, P]
+        rewards, value, next_value, adv_all, penalty = self.constraint_terms(
+            state, slack, rollout.obs, rollout.final_obs, rollout.reward, rollout.terminated,
+            phase)
         reward, v, next_v = rewards @ pick, value @ pick, next_value @ pick
-        adv_all = ancestral_advantages(rewards, value, next_value, rollout.terminated,
-                                       cfg.gamma)
-        if self.restricts:  # the restriction alone keeps the slack
-            penalty = jnp.zeros_like(reward)
-            q_target = adv_all
-        else:
-            completion = jnp.asarray(prob.slack_index == len(prob.graph.edges), jnp.float32)
-            slacks = prob.constraint_slacks(slack)
-            margin = jnp.minimum(jnp.asarray(self.margin), slacks / 2)
-            c = violations(adv_all, jnp.asarray(prob.head),
-                           slacks - margin + completion * jnp.asarray(self.tolerance))
-            penalty = c @ jnp.asarray(prob.active)[phase]  # [T, E]; zeros when no edges
-            q_target = None
+        q_target = adv_all if self.restricts else None
         # An exploring step cuts the trace of the policy's returns before it.
         following = jnp.concatenate([rollout.explore[1:], jnp.zeros_like(rollout.explore[:1])])
         done = jnp.maximum(rollout.done, following)
@@ -388,6 +388,31 @@ class Trainer:
                       q_target, rollout.allowed, 1.0 - rollout.explore)
         batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
         return batch, penalty, state.value_norm.update(target, pick)
+
+    def constraint_terms(self, state: TrainState, slack: jax.Array, obs: jax.Array,
+                         next_obs: jax.Array, reward: jax.Array, terminated: jax.Array,
+                         phase: jax.Array) -> tuple[jax.Array, ...]:
+        """Of transitions ``[..., D]`` (any leading axes): every phase's reward, value
+        and next value, the one-step advantages against the frozen critics (each
+        ``[..., P]``), and ``phase``'s penalty ``[...]`` (Eq. 10's sum of violations,
+        each counted from its slack less its ``margin``; zero in the restriction form,
+        where the admissible actions alone keep the slacks)."""
+        prob = self.problem
+        # The critics see every step at once (one batched call, not one per step).
+        out = self.values(state, jnp.stack([obs, next_obs]))[..., 0]
+        value, next_value = out[0], out[1]
+        rewards = reward[..., jnp.asarray(prob.reward)]
+        adv_all = ancestral_advantages(rewards, value, next_value, terminated,
+                                       self.config.gamma)
+        if self.restricts:
+            return rewards, value, next_value, adv_all, jnp.zeros(adv_all.shape[:-1])
+        completion = jnp.asarray(prob.slack_index == len(prob.graph.edges), jnp.float32)
+        slacks = prob.constraint_slacks(slack)
+        margin = jnp.minimum(jnp.asarray(self.margin), slacks / 2)
+        c = violations(adv_all, jnp.asarray(prob.head),
+                       slacks - margin + completion * jnp.asarray(self.tolerance))
+        penalty = c @ jnp.asarray(prob.active)[phase]  # zeros when no edges
+        return rewards, value, next_value, adv_all, penalty
 
     def ppo_epochs(self, state: TrainState, batch: Batch, phase: jax.Array,
                    value_norm: ValueNorm, lr: jax.Array, ent_coef: jax.Array
@@ -468,6 +493,46 @@ class Trainer:
             return g * own.reshape(-1, *([1] * (g.ndim - 1)))
 
         return jax.tree_util.tree_map_with_path(mask, grads)
+
+    # ---------------------------------------------------------------- finish
+    def finish(self, state: TrainState, slack: jax.Array, env: Any = None) -> TrainState:
+        """A finished run's answer (``config.select``, else ``state`` unchanged): the
+        actor becomes the final policy of the phase that :meth:`candidates` on
+        ``env`` (a JAX env of the task, e.g. from its start; by default the training
+        env) and :func:`tpo.algo.selection.choose` pick. Depends only on the
+        snapshots, so finishing twice is finishing once."""
+        if not self.config.select or self.problem.n_phases == 1:
+            return state
+        returns, penalty = self.candidates(state, slack, self.env if env is None else env)
+        prob = self.problem
+        leaf = len(prob.graph.order) - 1
+        ranges = reward_ranges(self.env.reward_low, self.env.reward_high)[prob.reward]
+        tolerance = jnp.asarray(SELECT_TOLERANCE * ranges, jnp.float32)
+        pick = choose(returns, penalty, [leaf, *range(leaf)], tolerance,
+                      SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)))
+        actor = jax.tree.map(lambda s: s[pick], state.snapshots)
+        return state.replace(params={**state.params, "actor": actor})
+
+    def candidates(self, state: TrainState, slack: jax.Array, env: Any
+                   ) -> tuple[jax.Array, jax.Array]:
+        """Every phase's final policy, acting greedily as the run's policy does (under
+        the last phase's constraints) for ``SELECT_EPISODES`` episodes of ``env`` (the
+        same for each): its mean discounted return of every phase's objective
+        ``[P, P]`` and its mean discounted penalty of the leaf's constraints ``[P]``.
+        One candidate at a time (their episodes' critic activations are the memory)."""
+        acting = self.acting(state, slack, jnp.int32(self.problem.n_phases - 1))
+        leaf = jnp.int32(len(self.problem.graph.order) - 1)
+        keys = jax.random.split(jax.random.fold_in(state.key, 1), SELECT_EPISODES)
+
+        def score(actor):
+            ep = episodes(self.policy, acting._replace(actor=actor), env, keys, True)
+            rewards, *_, penalty = self.constraint_terms(
+                state, slack, ep.obs, ep.next_obs, ep.reward, ep.terminated, leaf)
+            gamma = self.config.gamma
+            return (discounted(rewards, ep.alive, gamma).mean(0),
+                    discounted(penalty, ep.alive, gamma).mean(0))
+
+        return jax.lax.map(score, state.snapshots)
 
     # ------------------------------------------------------------------- run
     def run(self, state: TrainState, slack: jax.Array, num_updates: int

@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import jax
@@ -105,8 +106,10 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
             saved_at = time.monotonic()
         if progress is not None:
             progress(done, trainer.num_updates)
-    actings = jax.vmap(jax.vmap(trainer.acting, in_axes=(0, None)))(
-        states, jnp.asarray(slack_arr))
+    slack_j = jnp.asarray(slack_arr)
+    finish = partial(trainer.finish, env=from_spec(env.to_spec(), evaluation=True))
+    states = jax.jit(jax.vmap(jax.vmap(finish, in_axes=(0, None))))(states, slack_j)
+    actings = jax.vmap(jax.vmap(trainer.acting, in_axes=(0, None)))(states, slack_j)
     return evaluate_sweep(trainer, actings, env, graphs, slack_arr, tuple(seeds), episodes)
 
 

@@ -1,0 +1,43 @@
+"""The end of a TPO run: which phase's final policy answers (docs/design.md §5).
+
+Where the leaf is indifferent (its goal out of reach within the slack), the
+leaf's phase leaves its policy to chance, while the tie rule of
+docs/design.md §2 (lexicographic completion) gives the remaining freedom to the
+ancestors, roots first. The policies the ancestors' own phases ended with are
+often exactly that completion (measured in docs/notes/tpo-learning.md), so the
+run ends by choosing among the phases' final policies, judged by their greedy
+Monte Carlo returns: the tie rule, applied to the candidates the run already has.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+
+
+def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
+           tolerance: jax.Array, penalty_tolerance: float | jax.Array) -> jax.Array:
+    """The index of the answering candidate, lexicographically.
+
+    ``returns [N, P]``: candidate ``n``'s return of phase ``p``'s objective;
+    ``penalty [N]``: its total violation of the leaf's constraints (the leaf
+    phase's own checks); the reference candidate, the leaf's own policy, is the
+    last. A candidate is admissible when its penalty is at most the reference's
+    plus ``penalty_tolerance``. Among the admissible ones, keep those within
+    ``tolerance[p]`` of the best return of phase ``p`` for each ``p`` in
+    ``order`` (the leaf's objective first, then its ancestors roots first),
+    and of those the latest (the reference where it is still tied).
+    """
+    n = returns.shape[0]
+    keep = penalty <= penalty[-1] + penalty_tolerance
+    for p in order:
+        best = jnp.max(jnp.where(keep, returns[:, p], -jnp.inf))
+        keep = keep & (returns[:, p] >= best - tolerance[p])
+    return jnp.max(jnp.where(keep, jnp.arange(n), -1))
+
+
+def stack_snapshot(snapshots: dict, phase: jax.Array, actor: dict) -> dict:
+    """``snapshots`` (every leaf ``[P, ...]``) with ``actor`` written at ``phase``."""
+    return jax.tree.map(lambda s, a: s.at[phase].set(a), snapshots, actor)

@@ -1,0 +1,125 @@
+"""The end of a run: every phase's final policy is kept, and the answer is chosen
+among them by the tie rule (tpo.algo.selection, Trainer.finish)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import serialization
+
+from tpo.algo.config import TPOConfig
+from tpo.algo.evaluate import episode_returns
+from tpo.algo.persist import restore_state
+from tpo.algo.selection import choose
+from tpo.algo.train import SELECT_EPISODES, Trainer
+from tpo.envs import OBJECTIVES, load_map
+from tpo.envs.grid import GridNav
+from tpo.graph import ObjectiveGraph
+
+# Candidates of M>A>G, phases (monitor, avoid, goal); the last is the leaf's own.
+# Order: the leaf (goal, phase 2) first, then monitor, then avoid.
+ORDER = [2, 0, 1]
+TOL = jnp.array([1.0, 1.0, 0.5])
+
+
+def pick(returns, penalty, penalty_tolerance=10.0):
+    return int(choose(jnp.array(returns, jnp.float32), jnp.array(penalty, jnp.float32), ORDER,
+                      TOL, penalty_tolerance))
+
+
+def test_an_indifferent_leaf_takes_the_root_s_policy():
+    # Every candidate misses the goal alike (-86.6): the monitor decides.
+    returns = [[77.0, -9.0, -86.6], [0.0, 0.0, -86.6], [3.0, -20.0, -86.6]]
+    assert pick(returns, [3.0, 0.0, 0.0]) == 0
+    # Over the penalty tolerance, the root's policy is not admissible: of the rest
+    # the monitor's best (3 against 0) answers.
+    assert pick(returns, [12.0, 0.0, 0.0]) == 2
+
+
+def test_the_leaf_s_objective_comes_first_and_ties_keep_the_leaf_s_policy():
+    returns = [[77.0, -9.0, -86.6], [0.0, 0.0, -86.6], [0.0, 0.0, -24.5]]
+    assert pick(returns, [0.0, 0.0, 0.0]) == 2  # the goal reached: the leaf's own
+    # Within half a step on the goal, the monitor decides.
+    assert pick([[77.0, -9.0, -24.6], *returns[1:]], [0.0, 0.0, 0.0]) == 0
+    # All tied on every objective: the reference (the last) answers.
+    assert pick([[1.0, 1.0, -20.0]] * 3, [0.0, 0.0, 0.0]) == 2
+
+
+def test_penalties_count_against_the_leaf_s_own():
+    returns = [[77.0, -9.0, -86.6], [0.0, 0.0, -86.6], [0.0, 0.0, -86.6]]
+    assert pick(returns, [30.0, 0.0, 25.0]) == 0  # 5 more than the leaf's: within 10
+    assert pick(returns, [36.0, 0.0, 25.0]) == 2  # 11 more
+
+
+@pytest.fixture(scope="module")
+def three_phases():
+    env = GridNav(load_map("small"))
+    graph = ObjectiveGraph.parse("M>A>G", [5, 5], objectives=OBJECTIVES)
+    trainer = Trainer(env, graph, TPOConfig(num_envs=4, num_steps=16), 3 * 64)
+    state = trainer.init(jax.random.key(0))
+    actors = [trainer.init_params(jax.random.key(k))["actor"] for k in (1, 2, 3)]
+    state = state.replace(snapshots=jax.tree.map(lambda *x: jnp.stack(x), *actors))
+    return env, trainer, state, actors
+
+
+def test_candidates_are_each_snapshot_s_greedy_returns_and_penalty(three_phases):
+    env, trainer, state, actors = three_phases
+    slack = trainer.slack_array()
+    returns, penalty = jax.jit(trainer.candidates, static_argnums=2)(state, slack, env)
+    keys = jax.random.split(jax.random.fold_in(state.key, 1), SELECT_EPISODES)
+    columns = [OBJECTIVES.index(n) for n in ("monitor", "avoid", "goal")]
+    for p, actor in enumerate(actors):
+        acting = trainer.acting(state, slack)._replace(actor=actor)
+        _, disc, _ = episode_returns(trainer.policy, acting, env, keys, True, 0.99)
+        np.testing.assert_allclose(returns[p], disc.mean(0)[jnp.array(columns)], rtol=1e-5,
+                                   atol=1e-4)
+    assert penalty.shape == (3,) and bool((penalty >= 0).all())
+
+
+def test_finish_answers_with_the_chosen_snapshot_once_and_for_all(three_phases):
+    env, trainer, state, actors = three_phases
+    slack = trainer.slack_array()
+    finish = jax.jit(trainer.finish, static_argnums=2)
+    done = finish(state, slack, env)
+    chosen = [p for p, a in enumerate(actors)
+              if jax.tree.all(jax.tree.map(jnp.array_equal, a, done.params["actor"]))]
+    assert len(chosen) == 1
+    again = finish(done, slack, env)
+    assert jax.tree.all(jax.tree.map(jnp.array_equal, again.params["actor"],
+                                     done.params["actor"]))
+    off = Trainer(env, trainer.problem.graph, TPOConfig(num_envs=4, num_steps=16, select=False),
+                  3 * 64)
+    kept = off.finish(state, slack, env)
+    assert kept.params["actor"] is state.params["actor"]
+
+
+def test_every_phase_leaves_its_final_actor_in_the_snapshots():
+    env = GridNav(load_map("small"), random_start=True)
+    graph = ObjectiveGraph.parse("M>A>G", [5, 5], objectives=OBJECTIVES)
+    trainer = Trainer(env, graph, TPOConfig(num_envs=4, num_steps=16), 3 * 2 * 64)
+    slack = trainer.slack_array()
+    state = trainer.init(jax.random.key(0))
+    run = jax.jit(trainer.run, static_argnums=2)
+    ends = []
+    for _ in range(3):  # two updates a phase
+        state, _ = run(state, slack, 2)
+        ends.append(state.params["actor"])
+    for p, actor in enumerate(ends):
+        assert jax.tree.all(jax.tree.map(
+            lambda s, a, p=p: jnp.array_equal(s[p], a), state.snapshots, actor))
+    first = [jax.tree.leaves(a)[0] for a in ends]
+    assert not np.array_equal(first[0], first[1]) and not np.array_equal(first[1], first[2])
+
+
+@pytest.mark.parametrize("batch", [(), (2, 3)])
+def test_a_format_5_state_loads_with_its_actor_as_every_snapshot(three_phases, batch):
+    """States saved before snapshots (a model, or a sweep's [slack, seed] stack)."""
+    _, _, state, _ = three_phases
+    state = jax.tree.map(lambda x: jnp.broadcast_to(x, (*batch, *x.shape)), state)
+    data = serialization.to_state_dict(state.replace(key=jax.random.key_data(state.key)))
+    del data["snapshots"]
+    blob = serialization.msgpack_serialize({"format": 5, "state": data})
+    loaded, _ = restore_state(state, blob)
+    axis = len(batch)
+    jax.tree.map(lambda s, a: np.testing.assert_array_equal(
+        s, np.stack([a] * 3, axis)), loaded.snapshots, state.params["actor"])
