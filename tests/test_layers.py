@@ -5,7 +5,8 @@ from pathlib import Path
 
 import tpo
 
-RANK = {"errors": 0, "atomic": 0, "lazy": 0, "locking": 0, "schema": 0, "graph": 1, "tabular": 2,
+RANK = {"errors": 0, "atomic": 0, "lazy": 0, "locking": 0, "schema": 0, "sensing": 0,
+        "deploy": 0, "graph": 1, "tabular": 2,
         "envs": 3, "algo": 4, "experiments": 5, "cli": 6}
 ROOT = Path(tpo.__file__).parent
 

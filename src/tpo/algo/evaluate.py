@@ -150,12 +150,13 @@ def reference_evaluation(policy: Policy, params: Any, env: ContinuousNav,
             "path": learned, "path_matches": learned == reference}
 
 
-def greedy_path(policy: Policy, params: Any, env: ContinuousNav, gamma: float
-                ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """The greedy policy's episode on ``env`` from its start: positions
-    ``[T + 1, 2]``, whether the robot is still there at each ``[T + 1]`` (false
-    after the goal), and the discounted return ``[k]``."""
-    obs, state = env.reset(jax.random.key(0), env.params)
+def greedy_path(policy: Policy, params: Any, env: ContinuousNav, gamma: float,
+                key: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The greedy policy's episode on ``env`` from its reset (by ``key``; the map's start
+    for an env without random starts): positions ``[T + 1, 2]``, whether the robot
+    is still there at each ``[T + 1]`` (false after the goal), and the discounted
+    return ``[k]``."""
+    obs, state = env.reset(jax.random.key(0) if key is None else key, env.params)
 
     def body(carry, key):
         obs, state, alive, disc_ret, disc = carry

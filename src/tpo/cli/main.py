@@ -53,7 +53,7 @@ def episodes(text: str) -> int:
     return value
 
 
-def check_plot_file(path: str, force: bool) -> Path:
+def check_plot_file(path: str, force: bool, option: str = "--plot") -> Path:
     """A figure file to write: a format matplotlib writes, and not a user's file
     unless ``--force``."""
     from matplotlib.backend_bases import FigureCanvasBase
@@ -61,12 +61,12 @@ def check_plot_file(path: str, force: bool) -> Path:
     p = Path(path)
     formats = FigureCanvasBase.get_supported_filetypes()
     if p.suffix[1:].lower() not in formats:
-        raise UsageError(f"--plot {p}: give a file ending in one of "
+        raise UsageError(f"{option} {p}: give a file ending in one of "
                          f"{', '.join('.' + f for f in sorted(formats))}")
     if (p.exists() or p.is_symlink()) and not force:
         raise UsageError(f"{p} exists; pass --force to overwrite it")
     if p.is_dir():
-        raise UsageError(f"--plot {p} is a directory")
+        raise UsageError(f"{option} {p} is a directory")
     return p
 
 
@@ -282,16 +282,56 @@ def print_reference_result(result: dict) -> None:
           f"{relaxed}; path: {paths}")
 
 
-def cmd_eval(args: argparse.Namespace) -> int:
+def run_model(args: argparse.Namespace) -> contextlib.AbstractContextManager:
+    """A context in which the saved model of ``args.run_dir`` loads (``load()``), no
+    other tpo process changing the run meanwhile."""
     from tpo.algo import TPO
 
     run_dir = Path(args.run_dir)
     # Not a run (load says why), or read-only (no tpo process can change it): no lock.
     locked = (run_dir / "config.toml").is_file() and os.access(run_dir, os.W_OK)
-    with exclusive(run_dir) if locked else contextlib.nullcontext():
-        model = TPO.load(run_dir / "model", trust_env_module=args.trust_module)
-        result = model.evaluate(episodes=args.episodes)
+
+    @contextlib.contextmanager
+    def held():
+        with exclusive(run_dir) if locked else contextlib.nullcontext():
+            yield lambda: TPO.load(run_dir / "model", trust_env_module=args.trust_module)
+
+    return held()
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    with run_model(args) as load:
+        result = load().evaluate(episodes=args.episodes)
     print(json.dumps(result, indent=2))
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from tpo.algo.export import export_policy
+
+    out = Path(args.out)
+    if out.exists() or out.is_symlink():
+        raise UsageError(f"{out} exists; choose another file name (export replaces nothing)")
+    with run_model(args) as load:
+        model = load()
+        export_policy(model, out, args.format)
+    done = "" if model.finished else " (its training is not finished)"
+    print(f"policy of {args.run_dir}{done} exported to {out} ({args.format})")
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from tpo.envs.render import save_figure
+    from tpo.experiments.picture import policy_figure
+
+    run_dir = Path(args.run_dir)
+    outs = ([check_plot_file(args.out, args.force, "--out")] if args.out
+            else [run_dir / "policy.png", run_dir / "policy.pdf"])  # the run's own files
+    with run_model(args) as load:
+        fig = policy_figure(load())
+    for out in outs:
+        save_figure(fig, out)
+    print(f"policy drawn to {', '.join(map(str, outs))}")
     return 0
 
 
@@ -443,6 +483,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
     add_loading_options(p)
     p.set_defaults(handler=cmd_eval)
+
+    p = sub.add_parser("export", help="export a run's policy for a robot (ONNX or NumPy)",
+                       description="Write the trained actor (greedy action and the action "
+                                   "distribution's parameters) with its metadata; run an "
+                                   ".npz with tpo.deploy (NumPy only), an .onnx with any "
+                                   "ONNX runtime.")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
+    p.add_argument("--format", choices=("onnx", "npz"), required=True)
+    p.add_argument("--out", required=True, metavar="FILE", help="file to create")
+    p.add_argument("--trust-module", metavar="PACKAGE",
+                   help="the package of a Gymnasium env that the saved model names")
+    p.set_defaults(handler=cmd_export)
+
+    p = sub.add_parser("render", help="draw what a run's policy does on its map",
+                       description="The greedy action of every cell (red where it leaves "
+                                   "LAR's admissible set) and the greedy path, or for a "
+                                   "continuous run its trajectories from several starts, "
+                                   "beside the run's exact values and LAR's.")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
+    p.add_argument("--out", metavar="FILE",
+                   help="figure file (.png, .pdf, ...; default RUN_DIR/policy.png and .pdf)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    p.add_argument("--trust-module", metavar="PACKAGE",
+                   help="the package of a Gymnasium env that the saved model names")
+    p.set_defaults(handler=cmd_render)
     return parser
 
 

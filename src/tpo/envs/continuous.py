@@ -36,9 +36,9 @@ from flax import struct
 from tpo.envs.base import JaxEnv, nav_reward
 from tpo.envs.maps import NavMap, check_max_steps
 from tpo.errors import MapError
+from tpo.sensing import blocked, observation, range_readings, ray_distances
 
 ACTION_KINDS = ("velocity", "heading")
-RAY_STEP = 0.2
 
 
 def headings(n: int) -> np.ndarray:
@@ -96,7 +96,7 @@ class ContinuousNav(JaxEnv):
             goal=jnp.asarray(navmap.goal, jnp.int32), max_steps=jnp.asarray(steps, jnp.int32),
             speed=jnp.float32(speed), noise=jnp.float32(noise),
             beams=jnp.asarray(headings(n_beams)),
-            ray_t=jnp.arange(RAY_STEP, max_range + 1e-6, RAY_STEP, dtype=jnp.float32))
+            ray_t=jnp.asarray(ray_distances(max_range)))
 
     @property
     def obs_shape(self) -> tuple[int]:
@@ -123,18 +123,10 @@ class ContinuousNav(JaxEnv):
 
     @staticmethod
     def observe(state: ContinuousState, params: ContinuousParams) -> jax.Array:
-        h, w = params.walls.shape
-        points = state.pos + params.beams[:, None, :] * params.ray_t[None, :, None]  # [K, M, 2]
-        hit = _blocked(points, params.walls)
-        first = jnp.argmax(hit, axis=1)
-        distance = jnp.where(hit.any(axis=1), params.ray_t[first] - RAY_STEP / 2,
-                             params.ray_t[-1])
-        cell = jnp.floor(state.pos).astype(jnp.int32)
-        return jnp.concatenate([
-            state.pos / jnp.array([h, w], jnp.float32),
-            distance / params.ray_t[-1],
-            jnp.stack([params.avoid[cell[0], cell[1]],
-                       params.monitor[cell[0], cell[1]]]).astype(jnp.float32)])
+        """:func:`tpo.sensing.observation` of the robot's position."""
+        distances = range_readings(state.pos, params.walls, params.beams, params.ray_t, jnp)
+        return observation(state.pos, distances, params.avoid, params.monitor,
+                           params.ray_t[-1], jnp)
 
     @staticmethod
     def displacement(action: jax.Array, params: ContinuousParams) -> jax.Array:
@@ -156,7 +148,7 @@ class ContinuousNav(JaxEnv):
         there = jnp.floor(target)
         corners = jnp.stack([target, jnp.stack([there[0], here[1]]) + 0.5,
                              jnp.stack([here[0], there[1]]) + 0.5])
-        bump = _blocked(corners, params.walls).any()
+        bump = blocked(corners, params.walls, jnp).any()
         pos = jnp.where(bump, state.pos, target)
         reward = nav_reward(params.avoid, params.monitor, here.astype(jnp.int32), bump)
         time = state.time + 1
@@ -165,11 +157,3 @@ class ContinuousNav(JaxEnv):
         nxt = ContinuousState(pos=pos, time=time)
         return ContinuousNav.observe(nxt, params), nxt, reward, terminated, truncated
 
-
-def _blocked(points: jax.Array, walls: jax.Array) -> jax.Array:
-    """Whether each point ``[..., 2]`` lies off the grid or in a wall cell."""
-    h, w = walls.shape
-    cell = jnp.floor(points).astype(jnp.int32)
-    inside = (cell[..., 0] >= 0) & (cell[..., 0] < h) & (cell[..., 1] >= 0) & (cell[..., 1] < w)
-    clipped = jnp.clip(cell, 0, jnp.array([h - 1, w - 1]))
-    return ~inside | walls[clipped[..., 0], clipped[..., 1]]

@@ -1,0 +1,175 @@
+"""Exporting a trained policy for a robot: a NumPy ``.npz`` (run by :mod:`tpo.deploy`
+with NumPy alone) or an ONNX model (run by ONNX Runtime or any ONNX runtime).
+
+Both hold the actor only, its greedy action and its distribution's parameters,
+and the same metadata (:func:`policy_meta`). The ONNX graph is built with the
+``onnx`` package's helper API: the actor is a few dense layers, so its graph is
+a handful of ``MatMul``/``Add``/activation nodes that any runtime runs, with no
+converter (such as jax2onnx) between the trained parameters and the file, and no
+dependency of the export on a converter's support for each JAX primitive.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import tpo
+from tpo import deploy
+from tpo.algo.tpo import TPO
+from tpo.atomic import write_atomic
+from tpo.envs.continuous import ContinuousNav, headings
+from tpo.envs.grid import GridNav
+from tpo.envs.grid_model import ACTIONS
+from tpo.errors import TPOError
+
+FORMATS = ("onnx", "npz")
+ONNX_OPSET = 13
+
+
+def actor_arrays(model: TPO) -> dict[str, np.ndarray]:
+    """The actor's parameters as ``float32`` arrays named ``layer_<i>/kernel`` … ``out/bias``
+    (and ``log_std``)."""
+    state = model._need_state()
+    trainer = model._need_trainer()
+    if trainer.restricts:
+        raise TPOError("a restriction-form policy acts through its critics' admissible "
+                       "actions; export supports the penalty form (the default)")
+    actor = state.params["actor"]
+    arrays = {f"{layer}/{name}": np.asarray(value, np.float32)
+              for layer, params in actor.items() if isinstance(params, dict)
+              for name, value in params.items()}
+    if "log_std" in actor:
+        arrays["log_std"] = np.asarray(actor["log_std"], np.float32)
+    return arrays
+
+
+def observer_arrays(model: TPO) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """How the policy's observation is made (metadata) and the arrays that
+    :mod:`tpo.deploy` makes it from."""
+    env = model.env
+    if isinstance(env, GridNav):
+        return ({"kind": env.observation,
+                 "encoder": "observer/table[row, col]: the observation of the robot's cell"},
+                {"observer/table": np.asarray(env.params.obs_table, np.float32)})
+    if isinstance(env, ContinuousNav):
+        p = env.params
+        return ({"kind": "continuous",
+                 "encoder": "position (row, col) / map shape, then range readings / "
+                            "max_range along the beams (clockwise from up), then in-avoid "
+                            "and in-monitor flags (tpo.sensing.observation)",
+                 "n_beams": int(p.beams.shape[0]), "max_range": float(p.ray_t[-1])},
+                {f"observer/{n}": np.asarray(getattr(p, n)) for n in
+                 ("walls", "avoid", "monitor", "beams", "ray_t")})
+    return ({"kind": "env", "encoder": "the observation of the env the policy was trained "
+             "on, flattened", "size": int(model.env.obs_shape[0])}, {})
+
+
+def action_meta(model: TPO) -> dict[str, Any]:
+    """What the policy's actions mean."""
+    env = model.env
+    if isinstance(env, GridNav):
+        return {"kind": "discrete", "meanings": list(ACTIONS)}
+    if isinstance(env, ContinuousNav):
+        speed = float(env.params.speed)
+        if env.action == "heading":
+            return {"kind": "discrete", "speed": speed,
+                    "meanings": [f"move {speed} cells toward (d_row, d_col) = "
+                                 f"({r + 0.0:.3f}, {c + 0.0:.3f})"
+                                 for r, c in np.round(headings(8), 3)]}
+        return {"kind": "continuous", "speed": speed,
+                "meanings": ["velocity (d_row, d_col), each clipped to [-1, 1], scaled down "
+                             f"to unit length if longer, times {speed} cells per step"]}
+    return {"kind": "discrete" if model.trainer.actor.discrete else "continuous",
+            "meanings": [repr(env.action_space)]}
+
+
+def policy_meta(model: TPO, observation: dict[str, Any]) -> dict[str, Any]:
+    """The exported file's metadata: what the policy expects and does."""
+    navmap = getattr(model.env, "navmap", None)
+    config = model.config
+    return {"format": deploy.FORMAT, "tpo_version": tpo.__version__,
+            "objectives": list(model.env.objectives), "dag": model.graph.spec,
+            "slack": list(model.graph.slacks), "gamma": config.gamma,
+            "hidden": list(config.hidden), "activation": config.activation,
+            "observation": observation, "action": action_meta(model),
+            "map": None if navmap is None else {
+                "name": navmap.name,
+                "sha256": hashlib.sha256(navmap.to_toml().encode()).hexdigest()},
+            "trained_timesteps": model.num_timesteps}
+
+
+def export_policy(model: TPO, out: str | Path, fmt: str) -> Path:
+    """Write ``model``'s policy to ``out`` as ``fmt`` (``onnx`` or ``npz``); never
+    replaces an existing file."""
+    if fmt not in FORMATS:
+        raise TPOError(f"unknown export format {fmt!r}; choose onnx or npz")
+    out = Path(out)
+    if out.exists():
+        raise TPOError(f"{out} exists; choose another file name (tpo never replaces a file "
+                       "on export)")
+    arrays = actor_arrays(model)
+    observation, observer = observer_arrays(model)
+    meta = policy_meta(model, observation)
+    if fmt == "npz":
+        buffer = io.BytesIO()
+        np.savez(buffer, meta=np.array(json.dumps(meta)), **arrays, **observer)
+        blob = buffer.getvalue()
+    else:
+        blob = onnx_model(arrays, meta).SerializeToString()
+    write_atomic(out, blob)
+    return out
+
+
+def onnx_model(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Any:
+    """The actor as an ONNX model: input ``obs [N, D]``; outputs ``action`` (the greedy
+    action: an ``int64`` index, or the Gaussian's mean), ``logits`` or ``mean``, and
+    for a Gaussian ``log_std``; the metadata as the ``tpo`` metadata property."""
+    try:
+        import onnx
+        from onnx import TensorProto, helper, numpy_helper
+    except ImportError:
+        raise TPOError("ONNX export needs the onnx package: pip install 'tpo[export]'") \
+            from None
+    activation = {"tanh": "Tanh", "relu": "Relu"}[meta["activation"]]
+    names = [f"layer_{i}" for i in range(len(meta["hidden"]))] + ["out"]
+    discrete = "log_std" not in arrays
+    head = "logits" if discrete else "mean"
+    nodes, x = [], "obs"
+    for i, name in enumerate(names):
+        last = i == len(names) - 1
+        nodes += [helper.make_node("MatMul", [x, f"{name}/kernel"], [f"{name}/matmul"]),
+                  helper.make_node("Add", [f"{name}/matmul", f"{name}/bias"],
+                                   [head if last else f"{name}/linear"])]
+        if not last:
+            nodes.append(helper.make_node(activation, [f"{name}/linear"], [f"{name}/act"]))
+            x = f"{name}/act"
+    n_out = arrays["out/bias"].shape[0]
+    outputs = [helper.make_tensor_value_info(head, TensorProto.FLOAT, ["batch", n_out])]
+    if discrete:
+        nodes.append(helper.make_node("ArgMax", [head], ["action"], axis=-1, keepdims=0))
+        outputs.insert(0, helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]))
+    else:
+        nodes += [helper.make_node("Identity", [head], ["action"]),
+                  helper.make_node("Identity", ["log_std_param"], ["log_std"])]
+        outputs.insert(0, helper.make_tensor_value_info("action", TensorProto.FLOAT,
+                                                        ["batch", n_out]))
+        outputs.append(helper.make_tensor_value_info("log_std", TensorProto.FLOAT, [n_out]))
+    weights = [numpy_helper.from_array(v, "log_std_param" if k == "log_std" else k)
+               for k, v in arrays.items()]
+    d = arrays["layer_0/kernel" if len(names) > 1 else "out/kernel"].shape[0]
+    graph = helper.make_graph(
+        nodes, "tpo_policy",
+        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["batch", d])], outputs,
+        initializer=weights)
+    model = helper.make_model(graph, producer_name="tpo", producer_version=tpo.__version__,
+                              opset_imports=[helper.make_opsetid("", ONNX_OPSET)])
+    model.ir_version = 8  # read by ONNX Runtime 1.14 and later
+    helper.set_model_props(model, {"tpo": json.dumps(meta)})
+    onnx.checker.check_model(model)
+    return model

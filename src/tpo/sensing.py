@@ -1,0 +1,51 @@
+"""What the continuous navigation robot senses, written once for NumPy and JAX.
+
+Every function takes the array module ``xp`` (``numpy`` or ``jax.numpy``), so the
+JAX env (:class:`tpo.envs.continuous.ContinuousNav`) and the NumPy-only runner of
+exported policies (:mod:`tpo.deploy`) compute the same observation from a
+position. This module imports NumPy alone.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+RAY_STEP = 0.2  # distance between the points sampled along a sensor beam, in cells
+
+
+def ray_distances(max_range: float) -> np.ndarray:
+    """The distances sampled along a beam, ``float32 [M]``: ``RAY_STEP`` to ``max_range``."""
+    return np.arange(RAY_STEP, max_range + 1e-6, RAY_STEP, dtype=np.float32)
+
+
+def blocked(points: Any, walls: Any, xp: Any = np) -> Any:
+    """Whether each point ``[..., 2]`` (row, col) lies off the grid or in a wall cell."""
+    h, w = walls.shape
+    cell = xp.floor(points).astype(xp.int32)
+    inside = (cell[..., 0] >= 0) & (cell[..., 0] < h) & (cell[..., 1] >= 0) & (cell[..., 1] < w)
+    clipped = xp.clip(cell, 0, xp.array([h - 1, w - 1]))
+    return ~inside | walls[clipped[..., 0], clipped[..., 1]]
+
+
+def range_readings(pos: Any, walls: Any, beams: Any, ray_t: Any, xp: Any = np) -> Any:
+    """A range sensor at ``pos [2]``: along each beam ``[K, 2]`` the distance to the first
+    blocked point sampled at ``ray_t [M]`` (less half a step), or ``ray_t[-1]``: ``[K]``."""
+    points = pos + beams[:, None, :] * ray_t[None, :, None]  # [K, M, 2]
+    hit = blocked(points, walls, xp)
+    first = xp.argmax(hit, axis=1)
+    return xp.where(hit.any(axis=1), ray_t[first] - RAY_STEP / 2, ray_t[-1])
+
+
+def observation(pos: Any, distances: Any, avoid: Any, monitor: Any, max_range: Any,
+                xp: Any = np) -> Any:
+    """The observation ``[4 + K]``: ``pos`` scaled to ``[0, 1]`` by the map's shape,
+    ``distances [K]`` divided by ``max_range``, and whether ``pos`` is in an avoid and
+    in a monitor region."""
+    h, w = avoid.shape
+    cell = xp.floor(pos).astype(xp.int32)
+    return xp.concatenate([
+        pos / xp.array([h, w], xp.float32),
+        distances / max_range,
+        xp.stack([avoid[cell[0], cell[1]], monitor[cell[0], cell[1]]]).astype(xp.float32)])
