@@ -404,9 +404,17 @@ def add_loading_options(p: argparse.ArgumentParser) -> None:
     package a saved model may import."""
     p.add_argument("--episodes", type=episodes, default=100,
                    help="Monte Carlo episodes (1 to 1,000,000)")
+    add_trust_module(p)
+
+
+def add_trust_module(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trust-module", metavar="PACKAGE",
                    help="the package of a Gymnasium env that a saved model names, to "
                         "import on load (tpo imports no module named in a file otherwise)")
+
+
+def add_run_dir(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -480,7 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_reproduce)
 
     p = sub.add_parser("eval", help="re-evaluate a saved run directory")
-    p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
+    add_run_dir(p)
     add_loading_options(p)
     p.set_defaults(handler=cmd_eval)
 
@@ -489,11 +497,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "distribution's parameters) with its metadata; run an "
                                    ".npz with tpo.deploy (NumPy only), an .onnx with any "
                                    "ONNX runtime.")
-    p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
+    add_run_dir(p)
     p.add_argument("--format", choices=("onnx", "npz"), required=True)
     p.add_argument("--out", required=True, metavar="FILE", help="file to create")
-    p.add_argument("--trust-module", metavar="PACKAGE",
-                   help="the package of a Gymnasium env that the saved model names")
+    add_trust_module(p)
     p.set_defaults(handler=cmd_export)
 
     p = sub.add_parser("render", help="draw what a run's policy does on its map",
@@ -501,12 +508,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "LAR's admissible set) and the greedy path, or for a "
                                    "continuous run its trajectories from several starts, "
                                    "beside the run's exact values and LAR's.")
-    p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
+    add_run_dir(p)
     p.add_argument("--out", metavar="FILE",
                    help="figure file (.png, .pdf, ...; default RUN_DIR/policy.png and .pdf)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
-    p.add_argument("--trust-module", metavar="PACKAGE",
-                   help="the package of a Gymnasium env that the saved model names")
+    add_trust_module(p)
     p.set_defaults(handler=cmd_render)
     return parser
 
