@@ -11,6 +11,7 @@ moves, the goal) stands in for the hardware and reads the map with `tpo.envs`.
 
 from __future__ import annotations
 
+import hashlib
 import sys
 
 import numpy as np
@@ -35,10 +36,16 @@ class World:
 
     MOVES = np.array([(-1, 0), (1, 0), (0, -1), (0, 1)])  # up, down, left, right
 
-    def __init__(self, map_name: str) -> None:
+    def __init__(self, map_name: str, sha256: str) -> None:
         from tpo.envs import load_map
+        from tpo.errors import MapError
 
-        self.map = load_map(map_name)
+        try:
+            self.map = load_map(map_name)
+        except MapError as err:
+            sys.exit(f"{err} (give the policy's map file as the second argument)")
+        if hashlib.sha256(self.map.to_toml().encode()).hexdigest() != sha256:
+            sys.exit(f"the policy was trained on another map than {map_name}")
 
     def move(self, cell: tuple[int, int], action: int) -> tuple[int, int]:
         r, c = np.asarray(cell) + self.MOVES[action]
@@ -49,7 +56,8 @@ class World:
 
 def main(path: str, map_name: str | None = None) -> None:
     robot = Robot(path)
-    world = World(map_name or robot.policy.meta["map"]["name"])
+    trained_on = robot.policy.meta["map"]
+    world = World(map_name or trained_on["name"], trained_on["sha256"])
     cell = tuple(int(v) for v in world.map.start)
     names = robot.policy.meta["action"]["meanings"]
     print(f"policy for {robot.policy.meta['dag']} at slack {robot.policy.meta['slack']}; "

@@ -41,3 +41,19 @@ def test_a_directory_is_written_whole_and_replaced_only_when_asked(tmp_path):
         write_dir_atomic(path, {"d": 3}, overwrite=True)  # neither str nor bytes
     assert [p.name for p in tmp_path.iterdir()] == ["model"]  # no temporary left behind
     assert [p.name for p in path.iterdir()] == ["c"]  # the old directory is kept
+
+
+def test_a_write_that_must_not_replace_leaves_a_file_made_meanwhile(tmp_path):
+    path = tmp_path / "f"
+    write_atomic(path, "new", replace=False)
+    assert path.read_text() == "new"
+    with pytest.raises(FileExistsError):
+        write_atomic(path, "newer", replace=False)
+    assert path.read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f"]  # no temporary left
+
+
+def test_an_error_names_the_file_asked_for_not_the_temporary(tmp_path):
+    with pytest.raises(FileNotFoundError) as err:
+        write_atomic(tmp_path / "missing" / "f", "x")
+    assert err.value.filename == str(tmp_path / "missing" / "f")

@@ -103,7 +103,8 @@ def test_continuous_policy_acts_alike_on_10000_observations(continuous_model, tm
 def test_the_npz_runs_where_jax_cannot_be_imported(grid_model, tmp_path):
     path = export_policy(grid_model, tmp_path / "policy.npz", "npz")
     code = ("import sys\n"
-            "for name in ('jax', 'jaxlib', 'flax', 'optax', 'gymnasium'):\n"
+            "for name in ('jax', 'jaxlib', 'flax', 'optax', 'gymnasium', 'scipy', "
+            "'matplotlib', 'tomli_w'):\n"
             "    sys.modules[name] = None  # importing them now fails\n"
             "from tpo.deploy import load_policy\n"
             f"policy = load_policy({str(path)!r})\n"
@@ -144,11 +145,50 @@ def test_bad_files_and_observations_get_one_clear_error(grid_model, tmp_path):
     bad.write_bytes(b"not a zip")
     with pytest.raises(DeployError, match="is not an exported tpo policy"):
         load_policy(bad)
-    policy = load_policy(export_policy(grid_model, tmp_path / "p.npz", "npz"))
+    path = export_policy(grid_model, tmp_path / "p.npz", "npz")
+    blob = path.read_bytes()
+    for name, damaged in (("empty", b""), ("half", blob[:len(blob) // 2]),
+                          ("short", blob[:-10])):
+        (tmp_path / name).write_bytes(damaged)
+        with pytest.raises(DeployError, match="is not an exported tpo policy"):
+            load_policy(tmp_path / name)
+    with np.load(path) as data:  # meta that disagrees with the arrays
+        arrays = dict(data)
+    meta = json.loads(str(arrays["meta"]))
+    for change in ({"hidden": [64]}, {"hidden": 3}, {"activation": ["tanh"]},
+                   {"observation": None}, {"action": {"kind": "continuous"}}):
+        np.savez(tmp_path / "edited.npz", **{**arrays,
+                                             "meta": np.array(json.dumps({**meta, **change}))})
+        with pytest.raises(DeployError, match="damaged or not tpo's"):
+            load_policy(tmp_path / "edited.npz")
+    policy = load_policy(path)
     with pytest.raises(DeployError, match="off the"):
         policy.observer.observe(cell=(99, 0))
+    for cell in ((-0.5, 2), (np.nan, 1), 5, (1, 2, 3)):
+        with pytest.raises(DeployError, match="cell must be two integers"):
+            policy.observer.observe(cell=cell)
+    obs = policy.observer.observe(cell=(1, 1))
+    obs[0] = 99.0  # a copy: the observer's table is untouched
+    assert policy.observer.observe(cell=(1, 1))[0] != 99.0
     with pytest.raises(DeployError, match="an observation has"):
         policy.act(np.zeros(3))
+    for bad in (np.full(policy.obs_size, np.nan), np.full(policy.obs_size, np.inf)):
+        with pytest.raises(DeployError, match="finite"):
+            policy.act(bad)
+
+
+def test_continuous_readings_are_checked(continuous_model, tmp_path):
+    policy = load_policy(export_policy(continuous_model, tmp_path / "p.npz", "npz"))
+    observer = policy.observer
+    with pytest.raises(DeployError, match="finite"):
+        observer.observe(position=(2.5, 2.5), ranges=[np.nan] * 8)
+    with pytest.raises(DeployError, match=">= 0"):
+        observer.observe(position=(2.5, 2.5), ranges=[-1.0] * 8)
+    with pytest.raises(DeployError, match="position must be"):
+        observer.observe(position=(np.inf, 1.0))
+    h = observer.walls.shape[0]
+    edge = observer.observe(position=(h - 1e-7, 1.5))  # rounds onto the edge in float32
+    assert np.isfinite(edge).all() and edge[0] < 1.0
 
 
 def test_export_and_render_from_the_command_line(tmp_path, capsys):

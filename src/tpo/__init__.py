@@ -13,7 +13,10 @@ Layers (a lower one never imports a higher one; docs/design.md §4)::
 """
 
 from tpo.errors import GraphError, InfeasibleError, ModelError, TPOError
-from tpo.graph import ObjectiveGraph
+from tpo.lazy import lazy_names
 
 __version__ = "0.2.0"
 __all__ = ["GraphError", "InfeasibleError", "ModelError", "ObjectiveGraph", "TPOError"]
+
+# Loaded on first use, so that tpo.deploy imports NumPy alone.
+__getattr__, __dir__ = lazy_names(__name__, {"ObjectiveGraph": "tpo.graph"}, globals())

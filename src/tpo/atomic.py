@@ -18,21 +18,30 @@ def _umask() -> int:
 UMASK = _umask()  # read once: os.umask can only be read by setting it
 
 
-def write_atomic(path: str | Path, data: str | bytes) -> None:
+def write_atomic(path: str | Path, data: str | bytes, replace: bool = True) -> None:
     """Write ``data`` to ``path`` through a synced temporary file and a rename (with
-    the permissions a plain ``open`` would give, not the temporary file's 0600)."""
+    the permissions a plain ``open`` would give, not the temporary file's 0600).
+    With ``replace`` false an existing ``path`` is never replaced, even one made
+    meanwhile (:class:`FileExistsError`): the file is linked in, not renamed."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    except OSError as err:  # name the file asked for, not the temporary one
+        raise OSError(err.errno, err.strerror, str(path)) from None
     try:
         os.fchmod(fd, 0o666 & ~UMASK)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data.encode() if isinstance(data, str) else data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
+        if replace:
+            os.replace(tmp, path)
+        else:
+            os.link(tmp, path)
+    except OSError as err:
+        raise OSError(err.errno, err.strerror, str(path)) from None
+    finally:
         Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_dir_atomic(path: str | Path, files: dict[str, str | bytes],

@@ -42,12 +42,16 @@ class GridObserver:
     table: np.ndarray
 
     def observe(self, cell: tuple[int, int]) -> np.ndarray:
-        """The observation ``float32 [D]`` of the robot at ``cell`` (row, col)."""
-        r, c = (int(v) for v in cell)
+        """The observation ``float32 [D]`` (a copy) of the robot at ``cell`` (row, col)."""
         h, w = self.table.shape[:2]
+        index = np.asarray(cell, dtype=object)
+        if index.shape != (2,) or not all(
+                isinstance(v, int | np.integer) and not isinstance(v, bool) for v in index):
+            raise DeployError(f"cell must be two integers (row, col), got {cell!r}")
+        r, c = (int(v) for v in index)
         if not (0 <= r < h and 0 <= c < w):
             raise DeployError(f"cell {(r, c)} is off the {h} x {w} map")
-        return self.table[r, c]
+        return self.table[r, c].copy()
 
 
 @dataclass(frozen=True)
@@ -75,22 +79,23 @@ class ContinuousObserver:
         """The observation ``float32 [4 + K]`` at ``position`` (row, col in cells) with
         the robot's own ``ranges [K]`` (cells; by default :meth:`ranges`)."""
         pos = self._position(position)
-        readings = self.ranges(pos) if ranges is None else np.asarray(ranges, np.float32)
-        if readings.shape != (len(self.beams),):
-            raise DeployError(f"ranges must be {len(self.beams)} readings, got shape "
-                              f"{readings.shape}")
-        readings = np.minimum(readings, np.float32(self.max_range))
+        readings = self.ranges(pos) if ranges is None else _numbers(ranges, "ranges")
+        if readings.shape != (len(self.beams),) or not np.all(readings >= 0):
+            raise DeployError(f"ranges must be {len(self.beams)} finite readings >= 0, got "
+                              f"{np.asarray(ranges)!r:.80}")
+        readings = np.minimum(readings, np.float32(self.max_range))  # the sensor's reach
         return sensing.observation(pos, readings, self.avoid, self.monitor,
                                    np.float32(self.max_range))
 
     def _position(self, position: Any) -> np.ndarray:
-        pos = np.asarray(position, np.float32)
+        pos = _numbers(position, "position", np.float64)
         h, w = self.walls.shape
-        if pos.shape != (2,) or not np.all(np.isfinite(pos)) \
-                or not (0 <= pos[0] < h and 0 <= pos[1] < w):
+        if pos.shape != (2,) or not (0 <= pos[0] < h and 0 <= pos[1] < w):
             raise DeployError(f"position must be (row, col) on the {h} x {w} map, got "
-                              f"{position!r}")
-        return pos
+                              f"{position!r:.80}")
+        # In float32 a position just below the map's edge may round onto it.
+        return np.minimum(pos.astype(np.float32),
+                          np.nextafter(np.array([h, w], np.float32), np.float32(0)))
 
 
 @dataclass(frozen=True)
@@ -114,7 +119,7 @@ class Policy:
 
     def forward(self, obs: Any) -> np.ndarray:
         """The logits (discrete) or the mean (continuous) at ``obs [..., D]``."""
-        x = np.asarray(obs, np.float32)
+        x = _numbers(obs, "an observation")
         if x.shape[-1:] != (self.obs_size,):
             raise DeployError(f"an observation has {self.obs_size} numbers, got shape "
                               f"{x.shape}")
@@ -132,32 +137,67 @@ class Policy:
 
 
 def load_policy(path: str | Path) -> Policy:
-    """The policy of an exported ``.npz`` (``tpo export RUN --format npz``)."""
+    """The policy of an exported ``.npz`` (``tpo export RUN --format npz``), checked
+    whole: :class:`DeployError` if it is anything else or damaged."""
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
         meta = json.loads(str(arrays.pop("meta")))
-    except (OSError, ValueError, KeyError) as err:
-        raise DeployError(f"{path} is not an exported tpo policy: {err}") from None
+    except Exception as err:  # a damaged zip raises what zipfile and numpy happen to
+        hint = " (an .onnx file runs with ONNX Runtime)" if str(path).endswith(".onnx") else ""
+        reason = "not a NumPy .npz of arrays" if "pickled" in str(err) else err
+        raise DeployError(f"{path} is not an exported tpo policy{hint}: {reason}") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise DeployError(f"{path}: unknown export format "
                           f"{meta.get('format') if isinstance(meta, dict) else None!r} "
                           f"(this version reads {FORMAT})")
     try:
-        n_hidden = len(meta["hidden"])
-        names = [f"layer_{i}" for i in range(n_hidden)] + ["out"]
-        layers = tuple((arrays[f"{n}/kernel"], arrays[f"{n}/bias"]) for n in names)
-        observer = _observer(meta["observation"]["kind"], arrays)
-        activation = meta["activation"]
-    except KeyError as err:
-        raise DeployError(f"{path} lacks {err} (a damaged or foreign file)") from None
-    if activation not in ACTIVATIONS:
-        raise DeployError(f"{path}: unknown activation {activation!r}")
-    return Policy(layers, activation, arrays.get("log_std"), meta, observer)
+        return _policy(arrays, meta)
+    except (KeyError, TypeError, ValueError) as err:
+        raise DeployError(f"{path} is damaged or not tpo's: {err}") from None
+
+
+def _policy(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Policy:
+    hidden, activation = meta["hidden"], meta["activation"]
+    if not isinstance(hidden, list) or activation not in ACTIVATIONS:
+        raise ValueError(f"meta has hidden {hidden!r:.40} and activation {activation!r:.40}")
+    names = [f"layer_{i}" for i in range(len(hidden))] + ["out"]
+    layers = tuple((arrays.pop(f"{n}/kernel"), arrays.pop(f"{n}/bias")) for n in names)
+    width = None
+    for name, (kernel, bias) in zip(names, layers, strict=True):
+        if kernel.dtype != np.float32 or bias.dtype != np.float32 or kernel.ndim != 2 \
+                or bias.shape != kernel.shape[1:] or width not in (None, kernel.shape[0]):
+            raise ValueError(f"layer {name} has kernel {kernel.shape} {kernel.dtype} and bias "
+                             f"{bias.shape} {bias.dtype}")
+        width = kernel.shape[1]
+    log_std = arrays.pop("log_std", None)
+    continuous = meta["action"]["kind"] == "continuous"
+    if continuous != (log_std is not None) or (
+            log_std is not None and log_std.shape != (width,)):
+        raise ValueError(f"a {meta['action']['kind']} action with log_std "
+                         f"{None if log_std is None else log_std.shape}")
+    observer = _observer(meta["observation"]["kind"], arrays)
+    unknown = [k for k in arrays if not k.startswith("observer/")]
+    if unknown:
+        raise ValueError(f"unknown arrays {unknown}")
+    return Policy(layers, activation, log_std, meta, observer)
+
+
+def _numbers(value: Any, what: str, dtype: type = np.float32) -> np.ndarray:
+    """``value`` as a finite array of ``dtype``, else :class:`DeployError`."""
+    try:
+        array = np.asarray(value, dtype)
+    except (TypeError, ValueError):
+        raise DeployError(f"{what} must be numbers, got {value!r:.80}") from None
+    if not np.all(np.isfinite(array)):
+        raise DeployError(f"{what} must be finite numbers, got {value!r:.80}")
+    return array
 
 
 def _observer(kind: str, arrays: dict[str, np.ndarray]
               ) -> GridObserver | ContinuousObserver | None:
+    if not isinstance(kind, str):
+        raise ValueError(f"observation kind {kind!r:.40}")
     if kind == "continuous":
         return ContinuousObserver(*(arrays[f"observer/{n}"] for n in
                                     ("walls", "avoid", "monitor", "beams", "ray_t")))

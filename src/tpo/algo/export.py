@@ -110,7 +110,9 @@ def export_policy(model: TPO, out: str | Path, fmt: str) -> Path:
     if fmt not in FORMATS:
         raise TPOError(f"unknown export format {fmt!r}; choose onnx or npz")
     out = Path(out)
-    if out.exists():
+    if out.suffix.lower() in (".onnx", ".npz") and out.suffix.lower() != f".{fmt}":
+        raise TPOError(f"{out}: the file name ends in {out.suffix} but the format is {fmt}")
+    if out.exists() or out.is_symlink():
         raise TPOError(f"{out} exists; choose another file name (tpo never replaces a file "
                        "on export)")
     arrays = actor_arrays(model)
@@ -122,7 +124,10 @@ def export_policy(model: TPO, out: str | Path, fmt: str) -> Path:
         blob = buffer.getvalue()
     else:
         blob = onnx_model(arrays, meta).SerializeToString()
-    write_atomic(out, blob)
+    try:
+        write_atomic(out, blob, replace=False)
+    except FileExistsError:
+        raise TPOError(f"{out} appeared during the export; it was left as it is") from None
     return out
 
 

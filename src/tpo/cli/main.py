@@ -59,7 +59,7 @@ def check_plot_file(path: str, force: bool, option: str = "--plot") -> Path:
     from matplotlib.backend_bases import FigureCanvasBase
 
     p = Path(path)
-    formats = FigureCanvasBase.get_supported_filetypes()
+    formats = set(FigureCanvasBase.get_supported_filetypes()) - {"pgf"}  # pgf needs LaTeX
     if p.suffix[1:].lower() not in formats:
         raise UsageError(f"{option} {p}: give a file ending in one of "
                          f"{', '.join('.' + f for f in sorted(formats))}")
@@ -67,6 +67,8 @@ def check_plot_file(path: str, force: bool, option: str = "--plot") -> Path:
         raise UsageError(f"{p} exists; pass --force to overwrite it")
     if p.is_dir():
         raise UsageError(f"{option} {p} is a directory")
+    if any(parent.exists() and not parent.is_dir() for parent in p.parents):
+        raise UsageError(f"{option} {p}: a folder on its path is a file")
     return p
 
 
@@ -310,8 +312,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     from tpo.algo.export import export_policy
 
     out = Path(args.out)
+    if args.out.endswith(("/", os.sep)) or out.is_dir():
+        raise UsageError(f"--out {args.out} is a directory; give a file name")
     if out.exists() or out.is_symlink():
         raise UsageError(f"{out} exists; choose another file name (export replaces nothing)")
+    if not out.parent.is_dir():
+        raise UsageError(f"--out {out}: the folder {out.parent} does not exist")
     with run_model(args) as load:
         model = load()
         export_policy(model, out, args.format)
@@ -327,6 +333,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     run_dir = Path(args.run_dir)
     outs = ([check_plot_file(args.out, args.force, "--out")] if args.out
             else [run_dir / "policy.png", run_dir / "policy.pdf"])  # the run's own files
+    for out in outs:
+        if out.is_dir():
+            raise UsageError(f"{out} is a directory; move it, or pass --out FILE")
     with run_model(args) as load:
         fig = policy_figure(load())
     for out in outs:

@@ -105,8 +105,8 @@ def _layout(navmap: Any) -> tuple[Figure, Axes, Axes]:
 def _side_panel(ax: Axes, learned: str, rows: list[tuple[str, float, float, float | None]],
                 result: dict[str, Any], model: TPO) -> None:
     lines = [f"{'objective':<9} {learned:>11} {'LAR':>8} {'floor':>8}"]
-    lines += [f"{n:<9} {v:>11.2f} {lar:>8.2f} "
-              f"{'-' if floor is None else f'{floor:.2f}':>8}" for n, v, lar, floor in rows]
+    lines += [f"{n:<9} {v + 0.0:>11.2f} {lar + 0.0:>8.2f} "
+              f"{'-' if floor is None else f'{floor + 0.0:.2f}':>8}" for n, v, lar, floor in rows]
     lines.append("")
     verdicts = [k for k in ("lar_correct", "strict", "same_values") if k in result]
     lines += [f"{k.replace('_', ' ')}: {'yes' if result[k] else 'no'}" for k in verdicts]
