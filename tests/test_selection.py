@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from flax import serialization
 
+from tpo.algo import TPO
 from tpo.algo.config import TPOConfig
 from tpo.algo.evaluate import episode_returns
 from tpo.algo.persist import restore_state
@@ -123,3 +124,21 @@ def test_a_format_5_state_loads_with_its_actor_as_every_snapshot(three_phases, b
     axis = len(batch)
     jax.tree.map(lambda s, a: np.testing.assert_array_equal(
         s, np.stack([a] * 3, axis)), loaded.snapshots, state.params["actor"])
+
+
+def test_a_gymnasium_env_s_run_is_finished_on_the_host_alike():
+    """HostRunner.finish: the same scores from episodes stepped on the host."""
+    model = TPO("mo-gymnasium:deep-sea-treasure-v0", "treasure>time", slack=0.0,
+                objectives=["treasure", "time"],
+                config=TPOConfig(num_envs=4, num_steps=16)).learn(2 * 64 * 2)
+    state, trainer, runner = model.state, model.trainer, model._run
+    chosen = [p for p in range(2) if jax.tree.all(jax.tree.map(
+        lambda s, a, p=p: jnp.array_equal(s[p], a), state.snapshots, state.params["actor"]))]
+    assert len(chosen) == 1  # the run ended by choosing a snapshot
+    acting = trainer.final_acting(state, trainer.slack_array())
+    ep = runner.greedy_episodes(acting, 6, seed=0)
+    assert ep.obs.shape[0] == 6 and ep.obs.shape[1] >= int(ep.alive.sum(1).max())
+    returns, _ = jax.jit(trainer.score)(state, trainer.slack_array(), ep)
+    mc = runner.monte_carlo(acting, 6, True, trainer.config.gamma, 0)["discounted"]
+    # phases (treasure, time) are the env's reward columns (treasure, time)
+    np.testing.assert_allclose(returns, mc.mean(0), rtol=1e-5, atol=1e-5)

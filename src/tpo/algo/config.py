@@ -90,8 +90,7 @@ class TPOConfig:
     """end the run by choosing among the phases' final policies by their greedy Monte
     Carlo returns: the leaf's objective first, then its ancestors roots first, among
     the policies the leaf's constraint checks admit (the tie rule of docs/design.md
-    §2 applied to the policies the run has; a JAX env only); false keeps the leaf's
-    own policy"""
+    §2 applied to the policies the run has); false keeps the leaf's own policy"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of

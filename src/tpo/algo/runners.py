@@ -16,8 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from tpo.algo.evaluate import Episodes
 from tpo.algo.phases import Acting
-from tpo.algo.train import Rollout, Trainer, TrainState
+from tpo.algo.train import SELECT_EPISODES, Rollout, Trainer, TrainState
 from tpo.envs.gym_adapter import EnvError, HostEnv
 
 Runner = Callable[[TrainState, jax.Array, int, int], tuple[TrainState, dict]]
@@ -41,7 +42,8 @@ def jax_runner(trainer: Trainer, task: Any = None) -> Runner:
 
 
 class HostRunner:
-    """Runs :class:`Trainer` updates on rollouts of a :class:`HostEnv`."""
+    """Runs :class:`Trainer` updates on rollouts of a :class:`HostEnv`; the call that
+    ends the run also finishes it (:meth:`finish`)."""
 
     def __init__(self, trainer: Trainer, env: HostEnv) -> None:
         self.trainer, self.env = trainer, env
@@ -58,6 +60,7 @@ class HostRunner:
             acting, obs, jax.random.wrap_key_data(key_data)))
         self._begin = jax.jit(trainer.begin_phase)
         self._learn = jax.jit(trainer.learn)
+        self._score = jax.jit(trainer.score)
 
     def __call__(self, state: TrainState, slack: jax.Array, n: int, length: int
                  ) -> tuple[TrainState, dict]:
@@ -67,6 +70,8 @@ class HostRunner:
             state, rollout, episodes = self.collect(state, slack)
             state, metrics = self._learn(self._begin(state), slack, rollout, episodes)
             history.append(metrics)
+        if int(state.update) >= self.trainer.num_updates:
+            state = self.finish(state, slack)
         return state, jax.tree.map(lambda *x: jnp.stack(x), *history)
 
     def collect(self, state: TrainState, slack: jax.Array
@@ -101,6 +106,53 @@ class HostRunner:
         state = state.replace(obs=jnp.asarray(obs), key=key,
                               episodes=jax.tree.map(jnp.asarray, stats))
         return state, rollout, stats.summary()
+
+    def finish(self, state: TrainState, slack: jax.Array) -> TrainState:
+        """:meth:`Trainer.finish` on the host env: every snapshot's greedy episodes
+        (the same seeds for each) scored by the same compiled code."""
+        trainer = self.trainer
+        if not trainer.config.select or trainer.problem.n_phases == 1:
+            return state
+        acting = trainer.final_acting(state, slack)
+        scored = []
+        for p in range(trainer.problem.n_phases):
+            actor = jax.tree.map(lambda s, p=p: s[p], state.snapshots)
+            ep = self.greedy_episodes(acting._replace(actor=actor), SELECT_EPISODES,
+                                      seed=int(state.update))
+            scored.append(self._score(state, slack, ep))
+        returns, penalty = (jnp.stack(x) for x in zip(*scored, strict=True))
+        return trainer.answer(state, returns, penalty)
+
+    def greedy_episodes(self, acting: Acting, episodes: int, seed: int) -> Episodes:
+        """``episodes`` greedy episodes of the runner's env from ``env.reset(seed)``, as
+        :class:`tpo.algo.evaluate.Episodes` padded to a power of two of steps (so
+        few lengths compile)."""
+        env = self.env
+        quota = -(-episodes // env.num_envs)
+        done: list[list[tuple]] = [[] for _ in range(env.num_envs)]
+        current: list[list[tuple]] = [[] for _ in range(env.num_envs)]
+        obs = env.reset(seed)
+        keys = _key_stream(jax.random.key(seed))
+        while min(len(d) for d in done) < quota:
+            action = self._act(acting, obs, next(keys), jnp.bool_(True))
+            nxt, reward, term, trunc, final = env.step(np.asarray(action))
+            for i in range(env.num_envs):
+                current[i].append((obs[i], final[i], reward[i], float(term[i])))
+                if term[i] or trunc[i]:
+                    if len(done[i]) < quota:
+                        done[i].append(current[i])
+                    current[i] = []
+            obs = nxt
+        runs = [run for d in done for run in d][:episodes]
+        length = 1 << max(len(r) for r in runs).bit_length()
+        zero = (np.zeros_like(obs[0]), np.zeros_like(obs[0]), np.zeros_like(reward[0]), 0.0)
+        padded = [[*r, *[zero] * (length - len(r))] for r in runs]
+        o, f, r, t = (np.asarray(x, np.float32) for x in zip(
+            *[tuple(zip(*run, strict=True)) for run in padded], strict=True))
+        alive = np.asarray([[1.0] * len(r) + [0.0] * (length - len(r)) for r in runs],
+                           np.float32)
+        return Episodes(jnp.asarray(o), jnp.asarray(f), jnp.asarray(r), jnp.asarray(t),
+                        jnp.asarray(alive))
 
     def monte_carlo(self, acting: Acting, episodes: int, greedy: bool, gamma: float,
                     seed: int) -> dict[str, np.ndarray]:

@@ -39,7 +39,7 @@ from flax import struct
 from tpo.algo.config import ConfigError, TPOConfig
 from tpo.algo.distributions import Categorical, Distribution
 from tpo.algo.episodes import EpisodeStats
-from tpo.algo.evaluate import discounted, episodes
+from tpo.algo.evaluate import Episodes, discounted, episodes
 from tpo.algo.lagrangian import (
     admissible,
     ancestral_advantages,
@@ -497,13 +497,19 @@ class Trainer:
     # ---------------------------------------------------------------- finish
     def finish(self, state: TrainState, slack: jax.Array, env: Any = None) -> TrainState:
         """A finished run's answer (``config.select``, else ``state`` unchanged): the
-        actor becomes the final policy of the phase that :meth:`candidates` on
-        ``env`` (a JAX env of the task, e.g. from its start; by default the training
-        env) and :func:`tpo.algo.selection.choose` pick. Depends only on the
-        snapshots, so finishing twice is finishing once."""
+        actor becomes the final policy of the phase that :meth:`answer` picks from
+        :meth:`candidates` on ``env`` (a JAX env of the task, e.g. from its start;
+        by default the training env). Depends only on the snapshots, so finishing
+        twice is finishing once."""
         if not self.config.select or self.problem.n_phases == 1:
             return state
-        returns, penalty = self.candidates(state, slack, self.env if env is None else env)
+        return self.answer(state, *self.candidates(state, slack,
+                                                   self.env if env is None else env))
+
+    def answer(self, state: TrainState, returns: jax.Array, penalty: jax.Array
+               ) -> TrainState:
+        """``state`` acting with the snapshot that :func:`tpo.algo.selection.choose`
+        picks from the candidates' ``returns [P, P]`` and ``penalty [P]``."""
         prob = self.problem
         leaf = len(prob.graph.order) - 1
         ranges = reward_ranges(self.env.reward_low, self.env.reward_high)[prob.reward]
@@ -517,22 +523,27 @@ class Trainer:
                    ) -> tuple[jax.Array, jax.Array]:
         """Every phase's final policy, acting greedily as the run's policy does (under
         the last phase's constraints) for ``SELECT_EPISODES`` episodes of ``env`` (the
-        same for each): its mean discounted return of every phase's objective
-        ``[P, P]`` and its mean discounted penalty of the leaf's constraints ``[P]``.
-        One candidate at a time (their episodes' critic activations are the memory)."""
-        acting = self.acting(state, slack, jnp.int32(self.problem.n_phases - 1))
-        leaf = jnp.int32(len(self.problem.graph.order) - 1)
+        same for each), scored by :meth:`score`: ``[P, P]`` and ``[P]``. One candidate at a
+        time (their episodes' critic activations are the memory)."""
+        acting = self.final_acting(state, slack)
         keys = jax.random.split(jax.random.fold_in(state.key, 1), SELECT_EPISODES)
+        return jax.lax.map(lambda actor: self.score(state, slack, episodes(
+            self.policy, acting._replace(actor=actor), env, keys, True)), state.snapshots)
 
-        def score(actor):
-            ep = episodes(self.policy, acting._replace(actor=actor), env, keys, True)
-            rewards, *_, penalty = self.constraint_terms(
-                state, slack, ep.obs, ep.next_obs, ep.reward, ep.terminated, leaf)
-            gamma = self.config.gamma
-            return (discounted(rewards, ep.alive, gamma).mean(0),
-                    discounted(penalty, ep.alive, gamma).mean(0))
+    def final_acting(self, state: TrainState, slack: jax.Array) -> Acting:
+        """What the run's policy acts with once it is over."""
+        return self.acting(state, slack, jnp.int32(self.problem.n_phases - 1))
 
-        return jax.lax.map(score, state.snapshots)
+    def score(self, state: TrainState, slack: jax.Array, ep: Episodes
+              ) -> tuple[jax.Array, jax.Array]:
+        """A candidate's mean discounted return of every phase's objective ``[P]`` and
+        mean discounted penalty of the leaf's constraints ``[]`` over its episodes."""
+        leaf = jnp.int32(len(self.problem.graph.order) - 1)
+        rewards, *_, penalty = self.constraint_terms(
+            state, slack, ep.obs, ep.next_obs, ep.reward, ep.terminated, leaf)
+        gamma = self.config.gamma
+        return (discounted(rewards, ep.alive, gamma).mean(0),
+                discounted(penalty, ep.alive, gamma).mean(0))
 
     # ------------------------------------------------------------------- run
     def run(self, state: TrainState, slack: jax.Array, num_updates: int
