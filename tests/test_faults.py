@@ -55,7 +55,9 @@ def test_an_unwritable_out_is_one_line(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(tpo.atomic.tempfile, "mkstemp", refuse)
     assert main(["train", *ARGS, "--out", str(tmp_path / "x")]) == 2
-    assert capsys.readouterr().err == f"tpo: error: Permission denied: {tmp_path / 'x'}\n"
+    # The file tpo was writing, not the temporary one mkstemp was making.
+    assert capsys.readouterr().err == (f"tpo: error: Permission denied: "
+                                       f"{tmp_path / 'x' / 'config.toml'}\n")
     assert not (tmp_path / "x").exists()  # the directory made for the run is gone
 
 
