@@ -20,12 +20,11 @@ from tpo.graph import ObjectiveGraph
 # Candidates of M>A>G, phases (monitor, avoid, goal); the last is the leaf's own.
 # Order: the leaf (goal, phase 2) first, then monitor, then avoid.
 ORDER = [2, 0, 1]
-TOL = jnp.array([1.0, 1.0, 0.5])
 
 
 def pick(returns, penalty, penalty_tolerance=10.0):
     return int(choose(jnp.array(returns, jnp.float32), jnp.array(penalty, jnp.float32), ORDER,
-                      TOL, penalty_tolerance))
+                      penalty_tolerance))
 
 
 def test_an_indifferent_leaf_takes_the_root_s_policy():
@@ -50,6 +49,16 @@ def test_penalties_count_against_the_leaf_s_own():
     returns = [[77.0, -9.0, -86.6], [0.0, 0.0, -86.6], [0.0, 0.0, -86.6]]
     assert pick(returns, [30.0, 0.0, 25.0]) == 0  # 5 more than the leaf's: within 10
     assert pick(returns, [36.0, 0.0, 25.0]) == 2  # 11 more
+
+
+def test_a_phase_s_policy_that_the_leaf_beats_on_its_own_objective_is_no_candidate():
+    # Deep Sea Treasure, treasure > time at slack 0: the treasure phase ended with the
+    # 17-step treasure 22.4, the leaf with the 19-step 23.7. Faster, but not the
+    # treasure's optimum: the leaf's own answers.
+    returns = jnp.array([[22.4, -17.0], [23.7, -19.0]])
+    assert int(choose(returns, jnp.zeros(2), [1, 0], 100.0)) == 1
+    assert int(choose(returns.at[0, 0].set(23.5), jnp.zeros(2), [1, 0],
+                      100.0)) == 0  # within 0.5 of the leaf's: it would answer
 
 
 @pytest.fixture(scope="module")

@@ -16,22 +16,31 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 
+from tpo.tabular.judge import ABS_TOL, REL_TOL
+
 
 def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
-           tolerance: jax.Array, penalty_tolerance: float | jax.Array) -> jax.Array:
+           penalty_tolerance: float | jax.Array) -> jax.Array:
     """The index of the answering candidate, lexicographically.
 
     ``returns [N, P]``: candidate ``n``'s return of phase ``p``'s objective;
     ``penalty [N]``: its total violation of the leaf's constraints (the leaf
     phase's own checks); the reference candidate, the leaf's own policy, is the
     last. A candidate is admissible when its penalty is at most the reference's
-    plus ``penalty_tolerance``. Among the admissible ones, keep those within
-    ``tolerance[p]`` of the best return of phase ``p`` for each ``p`` in
-    ``order`` (the leaf's objective first, then its ancestors roots first),
-    and of those the latest (the reference where it is still tied).
+    plus ``penalty_tolerance``, and when on its own phase's objective it is no
+    worse than the reference: a phase's policy stands in for
+    that objective's optimum under constraints the leaf keeps too, so one that
+    the leaf's own policy beats there is not what it stands for. Among the
+    admissible ones, keep those tied with the best return of phase ``p`` for each
+    ``p`` in ``order`` (the leaf's objective first, then its ancestors roots
+    first), and of those the latest (the reference where it is still tied).
+    Returns tie as the judge's verdicts do: within 2 % of the reference's, or 0.5
+    (:func:`tpo.tabular.judge.tolerance`).
     """
     n = returns.shape[0]
-    keep = penalty <= penalty[-1] + penalty_tolerance
+    tolerance = jnp.maximum(REL_TOL * jnp.abs(returns[-1]), ABS_TOL)
+    own = jnp.diagonal(returns) >= returns[-1] - tolerance
+    keep = own & (penalty <= penalty[-1] + penalty_tolerance)
     for p in order:
         best = jnp.max(jnp.where(keep, returns[:, p], -jnp.inf))
         keep = keep & (returns[:, p] >= best - tolerance[p])

@@ -62,8 +62,6 @@ from tpo.graph import ObjectiveGraph
 
 MAX_UPDATES = 2**31 - 1  # the update counter is an int32
 SELECT_EPISODES = 16  # greedy episodes per candidate at a run's end (Trainer.finish)
-#: candidates within this share of an objective's one-step reward range tie (half a step)
-SELECT_TOLERANCE = 0.5
 #: a candidate's penalty may exceed the leaf policy's by this many one-step reward ranges
 #: of the constrained parents (the learned critics' noise, docs/notes/tpo-learning.md)
 SELECT_PENALTY = 5.0
@@ -513,8 +511,7 @@ class Trainer:
         prob = self.problem
         leaf = len(prob.graph.order) - 1
         ranges = reward_ranges(self.env.reward_low, self.env.reward_high)[prob.reward]
-        tolerance = jnp.asarray(SELECT_TOLERANCE * ranges, jnp.float32)
-        pick = choose(returns, penalty, [leaf, *range(leaf)], tolerance,
+        pick = choose(returns, penalty, [leaf, *range(leaf)],
                       SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)))
         actor = jax.tree.map(lambda s: s[pick], state.snapshots)
         return state.replace(params={**state.params, "actor": actor})
