@@ -111,7 +111,7 @@ class HostRunner:
         """:meth:`Trainer.finish` on the host env: every snapshot's greedy episodes
         (the same seeds for each) scored by the same compiled code."""
         trainer = self.trainer
-        if not trainer.config.select or trainer.problem.n_phases == 1:
+        if not trainer.selects:
             return state
         acting = trainer.final_acting(state, slack)
         scored = []

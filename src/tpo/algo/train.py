@@ -499,10 +499,15 @@ class Trainer:
         :meth:`candidates` on ``env`` (a JAX env of the task, e.g. from its start;
         by default the training env). Depends only on the snapshots, so finishing
         twice is finishing once."""
-        if not self.config.select or self.problem.n_phases == 1:
+        if not self.selects:
             return state
         return self.answer(state, *self.candidates(state, slack,
                                                    self.env if env is None else env))
+
+    @property
+    def selects(self) -> bool:
+        """Whether a finished run chooses its answer among the phases' policies."""
+        return self.config.select and self.problem.n_phases > 1
 
     def answer(self, state: TrainState, returns: jax.Array, penalty: jax.Array
                ) -> TrainState:
