@@ -13,6 +13,7 @@ from tpo.cli.main import main
 from tpo.envs import grid_model, load_map
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
+from tpo.experiments.engine import Backend, FileLink
 from tpo.experiments.paper import FORMS, PANELS, Settings, direction
 from tpo.experiments.report import budget_text, results_csv, verdict_table
 from tpo.experiments.reproduce import check_settings, reproduce
@@ -86,28 +87,33 @@ def test_bad_forms_are_one_line(forms):
         check_settings(Settings(forms=forms))
 
 
-def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path, monkeypatch):
+def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path):
     """Finished panels are found by form and panel; the rest is queued, and the
     progress starts where the directory is."""
     settings = replace(Settings.quick(), forms=FORMS)
     out = tmp_path / "repro"
     queued, seen = [], []
 
-    def fake_jobs(fn, jobs, workers, progress):
-        queued.extend(name for name, _ in jobs)
-        return {name: {"form": args[1], "panel": args[2].name} for name, args in jobs}
+    class Fake(Backend):
+        def run(self, units, tracker, done, folder):
+            for u in units:
+                queued.append(u.name)
+                done(u.name, {"form": u.args[0], "panel": u.args[1].name})
 
-    monkeypatch.setattr("tpo.experiments.reproduce.run_jobs", fake_jobs)
-    monkeypatch.setattr("tpo.experiments.reproduce.write_outputs", lambda *a: None)
     (out / "panels").mkdir(parents=True)
     (out / "panels" / "restriction-b.json").write_text(json.dumps({"mine": True}))
-    result = reproduce(out, settings, seen.append)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr("tpo.experiments.reproduce.write_outputs", lambda *a: None)
+        result = reproduce(out, settings, seen.append, Fake())
     assert queued == [f"{f}-{p}" for f in FORMS for p in ("a", "b", "c", "d", "fig3")
                       if (f, p) != ("restriction", "b")]
-    assert seen == [{name: float(name == "restriction-b") for name, *_ in settings.jobs()}]
+    assert seen[0] == {name: float(name == "restriction-b") for name, *_ in settings.jobs()}
+    assert seen[-1] == dict.fromkeys(seen[0], 1.0)
     assert list(result.records) == list(FORMS)
     assert result.records["restriction"]["b"] == {"mine": True}
     assert result.records["penalty"]["fig3"] == {"form": "penalty", "panel": "fig3"}
+    assert json.loads((out / "panels" / "penalty-fig3.json").read_text()) == {
+        "form": "penalty", "panel": "fig3"}  # written by the driver as the unit finished
 
 
 class Interrupt(Exception):
@@ -124,20 +130,20 @@ def test_a_killed_sweep_resumes_from_its_checkpoint_to_the_same_result(tmp_path)
             raise Interrupt
 
     ckpt = tmp_path / "sweep.ckpt"
+    link = FileLink("sweep", 0.0, ckpt)
     with pytest.raises(Interrupt):
-        run_sweep(*args, chunk_updates=2, checkpoint=ckpt, checkpoint_seconds=0.0,
-                  progress=stop_after_two_chunks)
+        run_sweep(*args, chunk_updates=2, checkpoint=link, progress=stop_after_two_chunks)
     seen = []
-    resumed = run_sweep(*args, chunk_updates=2, checkpoint=ckpt,
+    resumed = run_sweep(*args, chunk_updates=2, checkpoint=FileLink("sweep", 60.0, ckpt),
                         progress=lambda done, total: seen.append(done))
-    assert seen == [6, 8]  # started after update 4
+    assert seen == [4, 6, 8]  # started after update 4
     np.testing.assert_array_equal(resumed.exact, whole.exact)
     np.testing.assert_array_equal(resumed.policies, whole.policies)
     # A checkpoint of another version (tpo 0.1's had no format) is named, not misread.
     ckpt.write_bytes(serialization.msgpack_serialize({"done": 4, "states": {}}))
     with pytest.raises(TPOError, match=r"written by another version of tpo \(format None; "
                                        r"this version reads \d+ to \d+\); delete it"):
-        run_sweep(*args, chunk_updates=2, checkpoint=ckpt)
+        run_sweep(*args, chunk_updates=2, checkpoint=link)
 
 
 @pytest.mark.slow

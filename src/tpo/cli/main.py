@@ -1,4 +1,5 @@
-"""The ``tpo`` command line: ``tpo maps``, ``solve``, ``train``, ``eval``, ``reproduce``.
+"""The ``tpo`` command line: ``tpo maps``, ``solve``, ``train``, ``eval``, ``export``,
+``render``, ``sweep``, ``reproduce``.
 
 Every user mistake ends in one line ``tpo: error: ...`` on stderr and exit code 2.
 """
@@ -400,6 +401,65 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+# -------------------------------------------------------------------- sweep
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from tpo.experiments.engine import backend
+    from tpo.experiments.slack_sweep import SweepSpec, exact_table, sweep
+
+    if not args.out.strip():
+        raise UsageError("--out must name a directory")
+    learning = {"seeds": args.seeds, "steps": args.steps,
+                "slacks_per_unit": args.slacks_per_unit, "backend": args.backend,
+                "workers": args.workers, "address": args.address, "storage": args.storage}
+    config = read_fields(args, TPOConfig)
+    if args.exact_only:
+        given = [k for k, v in learning.items() if v is not None] + list(config)
+        if given:
+            raise UsageError(f"--exact-only trains nothing: drop --{given[0].replace('_', '-')}")
+    chosen = {k: v for k, v in learning.items() if v is not None and k in
+              ("seeds", "steps", "slacks_per_unit")}
+    spec = SweepSpec(map=args.map, dag=args.dag, xs=tuple(parse_slack(args.slack)),
+                     edge_slack=tuple(v.strip() for v in args.edge_slack.split(","))
+                     if args.edge_slack else (), config=TPOConfig.from_dict(config), **chosen)
+    spec.check(learned=not args.exact_only)  # before anything is made
+    engine = None if args.exact_only else backend(
+        args.backend or "local", 2 if args.workers is None else args.workers, args.address,
+        args.storage)
+    with exclusive(args.out, create=True) as out:
+        if args.exact_only:
+            result = sweep(out, spec, exact_only=True, on_exact=lambda c: print(exact_table(c)))
+        else:
+            result = _learned_sweep(args, out, spec, engine)
+    print(result.summary())
+    return 0
+
+
+def _learned_sweep(args: argparse.Namespace, out: Path, spec, engine):
+    """The sweep with a progress bar over its runs, after the exact curve."""
+    from tqdm import tqdm
+
+    from tpo.experiments.slack_sweep import exact_table, sweep
+
+    runs = {name: len(xs) * spec.seeds for name, xs in spec.units()}
+    bars = []
+
+    def on_exact(curve: dict) -> None:
+        print(exact_table(curve))
+        print(f"exact curve written to {out / 'exact.csv'}; training "
+              f"{sum(runs.values())} runs", flush=True)
+        bars.append(tqdm(total=sum(runs.values()), unit="run", disable=args.quiet,
+                         desc="sweep"))
+
+    def progress(tracker) -> None:
+        bars[0].update(sum(runs[n] * f for n, f in tracker.fractions.items()) - bars[0].n)
+
+    try:
+        return sweep(out, spec, engine, on_exact=on_exact, progress=progress)
+    finally:
+        for bar in bars:
+            bar.close()
+
+
 # ------------------------------------------------------------------- parser
 class OneLineParser(argparse.ArgumentParser):
     """argparse whose usage errors are one line, as every other error of tpo."""
@@ -495,6 +555,39 @@ def build_parser() -> argparse.ArgumentParser:
                    help="completion phases after the leaf (docs/design.md §5)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_reproduce)
+
+    p = sub.add_parser("sweep", help="LAR's curve and TPO's runs against slack, any map",
+                       description="A slack sweep of one DAG: LAR's exact curve at once, "
+                                   "then TPO trained at every slack x seed (units of slacks "
+                                   "x seeds, each one compiled program, on local workers or "
+                                   "a Ray cluster), judged exactly. A killed sweep restarted "
+                                   "on its --out redoes nothing finished.")
+    p.add_argument("--out", required=True, help="output directory (resumed if it exists)")
+    p.add_argument("--map", default="home", help="bundled map or TOML file (default home)")
+    p.add_argument("--dag", default="M>A>G", help='objective DAG (default "M>A>G")')
+    p.add_argument("--slack", required=True,
+                   help="the x-axis: increasing slack values, e.g. 0,1,2,5,10,100")
+    p.add_argument("--edge-slack", metavar="E,...",
+                   help="per edge (in the order tpo solve prints): x for the swept value or "
+                        "a fixed slack, e.g. 0,x (default: every edge takes x)")
+    p.add_argument("--exact-only", action="store_true",
+                   help="LAR's curve alone (seconds), no training")
+    p.add_argument("--seeds", type=int, help="seeds per slack value (default 5)")
+    p.add_argument("--steps", type=int, help="env steps per run (default 1,000,000)")
+    p.add_argument("--slacks-per-unit", type=int,
+                   help="slack values per unit of work (one compiled program of these x "
+                        "every seed; default 1)")
+    p.add_argument("--backend", choices=("local", "ray"), help="local worker processes "
+                   "(default) or tasks on a Ray cluster (pip install 'tpo[ray]')")
+    p.add_argument("--workers", type=int, help="local: worker processes (default 2)")
+    p.add_argument("--address", help="ray: the cluster's address (default auto: the cluster "
+                                     "this machine belongs to)")
+    p.add_argument("--storage", metavar="DIR",
+                   help="ray: a folder every node and this machine share, for the units' "
+                        "checkpoints (default: sent to this machine)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_fields(p, TPOConfig, "hyperparameters (TPOConfig)")
+    p.set_defaults(handler=cmd_sweep)
 
     p = sub.add_parser("eval", help="re-evaluate a saved run directory")
     add_run_dir(p)

@@ -35,7 +35,8 @@ def draw_dag(ax: Axes, spec: str, label: str) -> None:
         ax.scatter([x], [y], s=520, facecolor="white", edgecolor=COLORS[n], linewidths=2,
                    zorder=3)
         ax.text(x, y, n[0].upper(), ha="center", va="center", fontsize=10, zorder=4)
-    ax.text(1.0, 1.3, f"({label})", ha="center", fontsize=11)
+    if label:
+        ax.text(1.0, 1.3, f"({label})", ha="center", fontsize=11)
     ax.set_xlim(-0.6, 2.6)
     ax.set_ylim(-1.2, 1.6)
     ax.axis("off")
@@ -44,19 +45,23 @@ def draw_dag(ax: Axes, spec: str, label: str) -> None:
 def draw_values(ax: Axes, record: dict[str, Any], xlabel: str) -> None:
     """Learned values (mean over seeds, min–max shaded) and LAR's (dashed)."""
     x = np.asarray(record["x"], float)
-    exact, lar = np.asarray(record["exact"]), np.asarray(record["lar"])
+    lar = np.asarray(record["lar"])
     infeasible = ~np.asarray(record["feasible"], bool)
     for k, name in enumerate(record["objectives"]):
         color = COLORS.get(name, "black")
-        ax.plot(x, exact[:, :, k].mean(axis=1), color=color, lw=2, marker="o", ms=3,
-                label=f"V_{name}")
-        ax.fill_between(x, exact[:, :, k].min(axis=1), exact[:, :, k].max(axis=1),
-                        color=color, alpha=0.15, lw=0)
-        ax.plot(x, lar[:, k], color=color, lw=1.2, ls="--")
+        if "exact" in record:  # else LAR's curve alone
+            exact = np.asarray(record["exact"])[:, :, k]
+            ax.plot(x, exact.mean(axis=1), color=color, lw=2, marker="o", ms=3,
+                    label=f"V_{name}")
+            ax.fill_between(x, exact.min(axis=1), exact.max(axis=1), color=color, alpha=0.15,
+                            lw=0)
+        ax.plot(x, lar[:, k], color=color, lw=1.2, ls="--", marker="." if len(x) == 1 else "",
+                label=None if "exact" in record else f"LAR V_{name}")
         if infeasible.any():
             ax.plot(x[infeasible], lar[infeasible, k], "x", color="black", ms=6)
     ax.set_xscale("symlog", linthresh=1.0)
-    ax.set_xlim(x.min(), x.max())
+    if len(x) > 1:
+        ax.set_xlim(x.min(), x.max())
     ax.set_xlabel(xlabel)
     ax.set_ylabel("V (discounted, start state)")
     ax.grid(True, color="lightgray", lw=0.5)
@@ -75,5 +80,19 @@ def figure2(records: Sequence[dict[str, Any]], panels: Sequence[Any]) -> Figure:
             ax.legend(fontsize=8, loc="best")
     fig.suptitle("Learned greedy policy (solid, seed min–max shaded) and LAR (dashed, "
                  "x = infeasible, relaxed) against slack", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def sweep_figure(record: dict[str, Any], dag: str, xlabel: str, title: str) -> Figure:
+    """One DAG drawing beside its values against slack: learned (if ``record`` has
+    them) solid with the seeds' range shaded, LAR dashed."""
+    fig = Figure(figsize=(8.5, 3.8))
+    grid = fig.add_gridspec(1, 2, width_ratios=[1, 2.3])
+    draw_dag(fig.add_subplot(grid[0, 0]), dag, "")
+    ax = fig.add_subplot(grid[0, 1])
+    draw_values(ax, record, xlabel)
+    ax.legend(fontsize=8, loc="best")
+    ax.set_title(title, fontsize=10)
     fig.tight_layout()
     return fig

@@ -65,14 +65,18 @@ def results_csv(records: Records) -> str:
 
 
 def _panel_rows(writer: Any, form: str, name: str, rec: dict[str, Any]) -> None:
-    for i, x in enumerate(rec["x"]):
-        for j, seed in enumerate(rec["seeds"]):
-            for k, obj in enumerate(rec["objectives"]):
-                writer.writerow((form, name, rec["panel"]["dag"], x,
-                                 "/".join(f"{v:g}" for v in rec["slacks"][i]), seed, obj,
-                                 f'{rec["exact"][i][j][k]:.6f}', f'{rec["mc"][i][j][k]:.6f}',
-                                 f'{rec["lar"][i][k]:.6f}', rec["feasible"][i],
-                                 *(rec[v][i][j] for v in VERDICTS)))
+    for row in record_rows(rec):
+        writer.writerow((form, name, rec["panel"]["dag"], *row))
+
+
+def record_rows(rec: dict[str, Any]) -> list[tuple]:
+    """One row per slack, seed and objective of a sweep record (the columns of
+    ``CSV_FIELDS`` from ``x``)."""
+    return [(x, "/".join(f"{v:g}" for v in rec["slacks"][i]), seed, obj,
+             f'{rec["exact"][i][j][k]:.6f}', f'{rec["mc"][i][j][k]:.6f}',
+             f'{rec["lar"][i][k]:.6f}', rec["feasible"][i], *(rec[v][i][j] for v in VERDICTS))
+            for i, x in enumerate(rec["x"]) for j, seed in enumerate(rec["seeds"])
+            for k, obj in enumerate(rec["objectives"])]
 
 
 def _mean_std(values: np.ndarray) -> str:
@@ -89,6 +93,20 @@ def _counts(recs: list[dict[str, Any]]) -> tuple[list[int], int]:
                 for n, v in enumerate(VERDICTS):
                     counts[n] += sum(rec[v][i])
     return counts, runs
+
+
+def slack_table(rec: dict[str, Any]) -> list[str]:
+    """Markdown rows of a sweep record: per slack, each objective's learned value
+    (mean ± std over seeds) beside LAR's, and the verdicts' counts over seeds."""
+    exact, lar, objs = np.array(rec["exact"]), np.array(rec["lar"]), rec["objectives"]
+    rows = ["| slack | " + " | ".join(f"{o} | LAR {o}" for o in objs)
+            + " | LAR feasible | LAR-correct | strict | same values |",
+            "|---" * (2 * len(objs) + 5) + "|"]
+    for i, x in enumerate(rec["x"]):
+        cells = [f"{_mean_std(exact[i, :, k])} | {lar[i, k]:.2f}" for k in range(len(objs))]
+        counts = " | ".join(f"{sum(rec[v][i])}/{len(rec['seeds'])}" for v in VERDICTS)
+        rows.append(f"| {x:g} | " + " | ".join(cells) + f" | {rec['feasible'][i]} | {counts} |")
+    return rows
 
 
 def verdict_table(records: Records) -> str:
@@ -137,20 +155,8 @@ def report(settings: Settings, records: Records) -> str:
              "runs out).", "", verdict_table(records), ""]
     for form, panels in records.items():
         for panel in PANELS:
-            rec = panels[panel.name]
-            exact, lar = np.array(rec["exact"]), np.array(rec["lar"])
-            objs = rec["objectives"]
             lines += [f"## ({panel.name}) `{panel.dag}`, slack on {panel.xlabel}: {form} form",
-                      "", "| slack | " + " | ".join(f"{o} | LAR {o}" for o in objs)
-                      + " | LAR feasible | LAR-correct | strict | same values |",
-                      "|---" * (2 * len(objs) + 5) + "|"]
-            for i, x in enumerate(rec["x"]):
-                cells = [f"{_mean_std(exact[i, :, k])} | {lar[i, k]:.2f}"
-                         for k in range(len(objs))]
-                counts = " | ".join(f"{sum(rec[v][i])}/{len(rec['seeds'])}" for v in VERDICTS)
-                lines.append(f"| {x:g} | " + " | ".join(cells) + f" | {rec['feasible'][i]} | "
-                             f"{counts} |")
-            lines.append("")
+                      "", *slack_table(panels[panel.name]), ""]
     lines += ["## Direction of each line", "", directions(records), ""]
     return "\n".join(lines)
 

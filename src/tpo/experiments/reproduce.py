@@ -4,9 +4,9 @@
 Every panel runs in each form of the constraint (``Settings.forms``: the paper's
 penalty and the restriction, on the same seeds). A panel of one form is one
 :func:`~tpo.experiments.sweep.run_sweep`: every slack × seed of its DAG trains as
-one compiled program. Panels run in a worker pool (:mod:`tpo.experiments.pool`)
-and each finished panel is saved to ``OUT/panels/FORM-NAME.json`` at once, so a
-killed run restarts where it was (a panel in progress resumes from its
+one compiled program: a unit of :mod:`tpo.experiments.engine`, run by its local
+or Ray backend. Each finished panel is saved to ``OUT/panels/FORM-NAME.json`` at
+once, so a killed run restarts where it was (a panel in progress resumes from its
 checkpoint). Output (:mod:`tpo.experiments.report`)::
 
     OUT/figure2-FORM.png  four panels like the paper's: V_avoid red, V_monitor blue,
@@ -30,13 +30,13 @@ from typing import TYPE_CHECKING, Any
 from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
+from tpo.experiments.engine import Backend, Link, LocalBackend, Unit, run_units
 from tpo.experiments.paper import Panel, Settings
+from tpo.experiments.report import Records, directions, verdict_table, write_outputs
 
 if TYPE_CHECKING:
     from tpo.algo import TPOConfig
     from tpo.envs.grid import GridNav
-from tpo.experiments.pool import report_progress, run_jobs
-from tpo.experiments.report import VERDICTS, Records, directions, verdict_table, write_outputs
 
 
 @dataclass(frozen=True)
@@ -96,44 +96,36 @@ def check_settings(settings: Settings) -> None:
                               f"of {settings.steps:,}): {err}") from None
 
 
-def run_panel(name: str, form: str, panel: Panel, xs: list[float], settings: Settings,
-              out: Path) -> dict[str, Any]:
-    """Train and evaluate one panel in ``form`` (job ``name``, in a worker process);
-    write its JSON."""
+def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, link: Link
+              ) -> dict[str, Any]:
+    """Train and evaluate one panel in ``form`` (a unit of work, in a worker): its
+    record."""
     from tpo.experiments.sweep import run_sweep
 
     env, config, slacks = panel_problem(form, panel, xs, settings)
     t0 = time.monotonic()
     result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps_of(panel),
-                       progress=lambda done, total: report_progress(name, done / total),
-                       checkpoint=out / "panels" / f"{name}.ckpt")
+                       progress=lambda done, total: link.progress(done / total),
+                       checkpoint=link)
     grid = env.tabular(config.gamma)
     paths = [[grid.rollout(pi).tolist() for pi in row] for row in result.policies]
-    record = {"form": form, "panel": asdict(panel), "x": xs, "slacks": slacks,
-              "seeds": list(settings.seeds),
-              "objectives": list(result.objectives), "exact": result.exact.tolist(),
-              "mc": result.mc.tolist(), "lar": result.lar.tolist(),
-              "feasible": result.feasible.tolist(),
-              **{k: getattr(result, k).tolist() for k in VERDICTS},
-              "paths": paths, "seconds": time.monotonic() - t0,
-              "runs": len(slacks) * len(settings.seeds)}
-    write_atomic(out / "panels" / f"{name}.json", json.dumps(record))
-    (out / "panels" / f"{name}.ckpt").unlink(missing_ok=True)
-    return record
+    return {"form": form, "panel": asdict(panel), "x": xs, **result.record(), "paths": paths,
+            "seconds": time.monotonic() - t0, "runs": len(slacks) * len(settings.seeds)}
 
 
 Progress = Callable[[dict[str, float]], None]
 
 
 def reproduce(out: str | Path, settings: Settings | None = None,
-              progress: Progress | None = None) -> Reproduction:
+              progress: Progress | None = None, backend: Backend | None = None
+              ) -> Reproduction:
     """Run (or finish) every panel into ``out`` and write figures, tables and report.
 
     A directory holding another reproduction (other settings, or runs of another
     learner config) is refused; panels already in ``out/panels`` are skipped.
     ``progress({job: fraction})`` is called at the start and as panels advance
     (keys: the names of :meth:`Settings.jobs`). ``settings`` default to the
-    paper's (:class:`Settings`).
+    paper's (:class:`Settings`); ``backend`` to ``settings.workers`` local workers.
     """
     settings = settings or Settings()
     check_settings(settings)
@@ -152,25 +144,10 @@ def reproduce(out: str | Path, settings: Settings | None = None,
                            f"{', '.join(changed)}: see its settings.json); choose another --out")
     else:
         write_atomic(settings_file, json.dumps(mine))
-    found: dict[str, dict[str, Any]] = {}
-    todo = []
-    for name, form, panel, xs in settings.jobs():
-        done = out / "panels" / f"{name}.json"
-        if done.exists():
-            found[name] = json.loads(done.read_text())
-        else:
-            todo.append((name, (name, form, panel, xs, settings, out)))
-    fractions = {name: float(name in found) for name, *_ in settings.jobs()}
-    if progress is not None:
-        progress(dict(fractions))
-
-    def advance(name: str, fraction: float) -> None:
-        if fraction > fractions[name]:  # a late report never moves a panel back
-            fractions[name] = fraction
-            if progress is not None:
-                progress(dict(fractions))
-
-    found.update(run_jobs(run_panel, todo, settings.workers, advance))
+    units = [Unit(name, run_panel, (form, panel, xs, settings))
+             for name, form, panel, xs in settings.jobs()]
+    found = run_units(units, backend or LocalBackend(settings.workers), out / "panels",
+                      None if progress is None else lambda t: progress(dict(t.fractions)))
     records = {form: {p.name: found[name] for name, f, p, _ in settings.jobs() if f == form}
                for form in settings.forms}
     write_outputs(out, settings, records)

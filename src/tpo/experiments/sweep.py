@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
-from pathlib import Path
+from typing import Any, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -23,7 +23,6 @@ from tpo.algo import TPOConfig, Trainer, TrainState
 from tpo.algo.evaluate import episode_returns
 from tpo.algo.persist import restore_state, state_bytes
 from tpo.algo.phases import Acting
-from tpo.atomic import write_atomic
 from tpo.envs.grid import GridNav
 from tpo.envs.spec import from_spec
 from tpo.errors import TPOError
@@ -62,6 +61,15 @@ class SweepResult:
     strict: np.ndarray
     same_values: np.ndarray
 
+    def record(self) -> dict[str, Any]:
+        """The JSON-able values and verdicts, by slack, seed and objective."""
+        return {"slacks": self.slacks.tolist(), "seeds": list(self.seeds),
+                "objectives": list(self.objectives), "exact": self.exact.tolist(),
+                "mc": self.mc.tolist(), "lar": self.lar.tolist(),
+                "feasible": self.feasible.tolist(),
+                **{k: getattr(self, k).tolist() for k in ("lar_correct", "strict",
+                                                          "same_values")}}
+
 
 Progress = Callable[[int, int], None]
 
@@ -69,16 +77,15 @@ Progress = Callable[[int, int], None]
 def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence[float]],
               seeds: Sequence[int], config: TPOConfig, total_timesteps: int, *,
               episodes: int = 8, chunk_updates: int = 32, progress: Progress | None = None,
-              checkpoint: Path | None = None, checkpoint_seconds: float = 60.0
-              ) -> SweepResult:
+              checkpoint: Checkpoint | None = None) -> SweepResult:
     """Train ``dag`` at every slack vector × seed in one compiled run and evaluate.
 
     ``env`` is the training env (e.g. with random starts); evaluation starts
-    from the map's start. ``progress(updates_done, num_updates)`` is called
-    after every chunk. With ``checkpoint`` (a file), the stacked training state
-    is saved there at most every ``checkpoint_seconds`` (atomically, at chunk
-    boundaries) and a later call with the same arguments resumes from it, to
-    the same result.
+    from the map's start. ``progress(updates_done, num_updates)`` is called as
+    training starts (or resumes) and after every chunk. With ``checkpoint``, the
+    stacked training state is saved there at most every ``checkpoint.every``
+    seconds (at chunk boundaries) and a later call with the same arguments resumes
+    from it, to the same result.
     """
     slack_arr = np.asarray(slacks, np.float32)
     first = slack_arr[0].tolist() if slack_arr.ndim == 2 and len(slack_arr) else []
@@ -94,15 +101,18 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
                           in_axes=(0, None, None))
     chunk = jax.jit(jax.vmap(over_seeds, in_axes=(0, 0, None)))  # one program, every chunk
     done = 0
-    if checkpoint is not None and checkpoint.exists():
-        states, done = _load_states(checkpoint, states)
+    saved = None if checkpoint is None else checkpoint.load()
+    if saved is not None:
+        states, done = _load_states(checkpoint, saved, states)
+    if progress is not None:
+        progress(done, trainer.num_updates)
     saved_at = time.monotonic()
     while done < trainer.num_updates:
         n = min(chunk_updates, trainer.num_updates - done)
         states = jax.block_until_ready(chunk(states, jnp.asarray(slack_arr), jnp.int32(n)))
         done += n
-        if checkpoint is not None and time.monotonic() - saved_at > checkpoint_seconds:
-            _save_states(checkpoint, states, done)
+        if checkpoint is not None and time.monotonic() - saved_at >= checkpoint.every:
+            checkpoint.save(state_bytes(states, done=done))
             saved_at = time.monotonic()
         if progress is not None:
             progress(done, trainer.num_updates)
@@ -110,20 +120,30 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
     finish = partial(trainer.finish, env=from_spec(env.to_spec(), evaluation=True))
     states = jax.jit(jax.vmap(jax.vmap(finish, in_axes=(0, None))))(states, slack_j)
     actings = jax.vmap(jax.vmap(trainer.acting, in_axes=(0, None)))(states, slack_j)
-    return evaluate_sweep(trainer, actings, env, graphs, slack_arr, tuple(seeds), episodes)
+    return evaluate_sweep(trainer, actings, env, graphs, np.asarray(slacks, np.float64),
+                          tuple(seeds), episodes)
 
 
-def _save_states(path: Path, states: TrainState, done: int) -> None:
-    write_atomic(path, state_bytes(states, done=done))
+class Checkpoint(Protocol):
+    """Where a sweep keeps its training state (:class:`tpo.experiments.engine.Link`):
+    saved at most every ``every`` seconds; ``where`` names it in messages."""
+
+    every: float
+    where: str
+
+    def load(self) -> bytes | None: ...
+
+    def save(self, data: bytes) -> None: ...
 
 
-def _load_states(path: Path, template: TrainState) -> tuple[TrainState, int]:
+def _load_states(checkpoint: Checkpoint, data: bytes, template: TrainState
+                 ) -> tuple[TrainState, int]:
     try:
-        states, extra = restore_state(template, path.read_bytes())
+        states, extra = restore_state(template, data)
         return states, int(extra["done"])
     except (ValueError, KeyError, TypeError) as err:
-        raise TPOError(f"{path} is not a checkpoint of this sweep: {err}; delete it to "
-                       "start the sweep again") from None
+        raise TPOError(f"{checkpoint.where} is not a checkpoint of this sweep: {err}; "
+                       "delete it to start the sweep again") from None
 
 
 def evaluate_sweep(trainer: Trainer, actings: Acting, env: GridNav,
