@@ -32,9 +32,9 @@ def test_the_reproduction_runs_the_default_learner_and_can_run_every_form():
 def test_each_panel_trains_its_share_of_the_budget():
     settings = Settings()
     steps = {p.name: settings.steps_of(p) for p, _ in settings.panels()}
-    assert steps == {"a": 1_000_000, "b": 1_500_000, "c": 1_000_000, "d": 1_000_000,
+    assert steps == {"a": 1_000_000, "b": 1_500_000, "c": 1_000_000, "d": 500_000,
                      "fig3": 1_000_000}
-    assert budget_text(settings) == "1,500,000 in (b), 1,000,000 in (a) (c) (d) (fig3)"
+    assert budget_text(settings) == "1,500,000 in (b), 1,000,000 in (a) (c) (fig3), 500,000 in (d)"
     even = replace(settings, steps=900, shares={})
     assert budget_text(even) == "900" and {even.steps_of(p) for p, _ in even.panels()} == {900}
 

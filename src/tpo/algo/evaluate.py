@@ -131,12 +131,7 @@ def reference_evaluation(policy: Policy, params: Any, env: ContinuousNav,
     ref = continuous_model(env, gamma)
     lar = solve_lar(ref.model, graph, relax=True)
     judge = Judge(lar)
-    # Noise-free, and long enough that the discounted return is the reference's
-    # infinite-horizon value to 1e-4 of its scale (a step limit is no part of it).
-    horizon = int(np.ceil(np.log(1e-4) / np.log(gamma))) if gamma > 0 else 1
-    spec = env.to_spec()
-    quiet = from_spec({**spec, "noise": 0.0, "max_steps": max(spec["max_steps"], horizon)})
-    run = jax.jit(partial(greedy_path, policy, env=quiet, gamma=gamma))
+    run = jax.jit(partial(greedy_path, policy, env=noise_free(env, gamma), gamma=gamma))
     positions, alive, returns = map(np.asarray, run(params))
     values = dict(zip(env.objectives, map(float, returns), strict=True))
     learned = path_category(env.navmap, positions[alive])
@@ -148,6 +143,14 @@ def reference_evaluation(policy: Policy, params: Any, env: ContinuousNav,
                           "resolution": ref.resolution, "path": reference},
             "lar_correct": judge.lar_correct(values, CONTINUOUS_TOL),
             "path": learned, "path_matches": learned == reference}
+
+
+def noise_free(env: ContinuousNav, gamma: float) -> ContinuousNav:
+    """``env`` without noise, its step limit long enough that a discounted return is
+    the reference's infinite-horizon value to 1e-4 of its scale."""
+    horizon = int(np.ceil(np.log(1e-4) / np.log(gamma))) if gamma > 0 else 1
+    spec = env.to_spec()
+    return from_spec({**spec, "noise": 0.0, "max_steps": max(spec["max_steps"], horizon)})
 
 
 def greedy_path(policy: Policy, params: Any, env: ContinuousNav, gamma: float,

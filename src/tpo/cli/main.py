@@ -345,6 +345,15 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def backend_of(args: argparse.Namespace):
+    """The engine's backend that ``--backend``, ``--workers``, ``--address`` and
+    ``--storage`` name (:func:`add_backend_options`)."""
+    from tpo.experiments.engine import backend
+
+    return backend(args.backend or "local", 2 if args.workers is None else args.workers,
+                   args.address, args.storage)
+
+
 # ---------------------------------------------------------------- reproduce
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from dataclasses import replace
@@ -373,16 +382,13 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         changes["seeds"] = tuple(range(args.seeds))
     if args.steps is not None:
         changes["steps"] = args.steps
-    if args.workers is not None:
-        if args.workers < 1:
-            raise UsageError("--workers must be at least 1")
-        changes["workers"] = args.workers
     if args.constraint is not None:
         changes["forms"] = FORMS if args.constraint == "both" else (args.constraint,)
     if args.completion:
         changes["completion"] = True
     settings = replace(settings, **changes)
     check_settings(settings)  # before the progress bar and before anything is made
+    engine = backend_of(args)
     with exclusive(args.out, create=True) as out:
         weights = {name: len(xs) * len(settings.seeds) * settings.steps_of(panel)
                    for name, _, panel, xs in settings.jobs()}
@@ -394,7 +400,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             bar.update(sum(weights[n] * f for n, f in fractions.items()) - bar.n)
 
         try:
-            result = reproduce(out, settings, progress)
+            result = reproduce(out, settings, progress, engine)
         finally:
             bar.close()
     print(f"{result.summary()}; {time.monotonic() - t0:.0f} s in all")
@@ -403,14 +409,13 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 # -------------------------------------------------------------------- sweep
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from tpo.experiments.engine import backend
     from tpo.experiments.slack_sweep import SweepSpec, exact_table, sweep
 
     if not args.out.strip():
         raise UsageError("--out must name a directory")
     learning = {"seeds": args.seeds, "steps": args.steps,
-                "slacks_per_unit": args.slacks_per_unit, "backend": args.backend,
-                "workers": args.workers, "address": args.address, "storage": args.storage}
+                "slacks_per_unit": args.slacks_per_unit, **{k: getattr(args, k) for k in (
+                    "backend", "workers", "address", "storage")}}
     config = read_fields(args, TPOConfig)
     if args.exact_only:
         given = [k for k, v in learning.items() if v is not None] + list(config)
@@ -418,13 +423,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise UsageError(f"--exact-only trains nothing: drop --{given[0].replace('_', '-')}")
     chosen = {k: v for k, v in learning.items() if v is not None and k in
               ("seeds", "steps", "slacks_per_unit")}
-    spec = SweepSpec(map=args.map, dag=args.dag, xs=tuple(parse_slack(args.slack)),
+    if args.action and args.dynamics != "continuous":
+        raise UsageError("--action is an option of --dynamics continuous")
+    spec = SweepSpec(map=args.map, dag=args.dag, dynamics=args.dynamics,
+                     action=args.action or SweepSpec.action, xs=tuple(parse_slack(args.slack)),
                      edge_slack=tuple(v.strip() for v in args.edge_slack.split(","))
                      if args.edge_slack else (), config=TPOConfig.from_dict(config), **chosen)
     spec.check(learned=not args.exact_only)  # before anything is made
-    engine = None if args.exact_only else backend(
-        args.backend or "local", 2 if args.workers is None else args.workers, args.address,
-        args.storage)
+    engine = None if args.exact_only else backend_of(args)
     with exclusive(args.out, create=True) as out:
         if args.exact_only:
             result = sweep(out, spec, exact_only=True, on_exact=lambda c: print(exact_table(c)))
@@ -484,6 +490,18 @@ def add_trust_module(p: argparse.ArgumentParser) -> None:
 
 def add_run_dir(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_dir", metavar="RUN_DIR", help="run directory written by tpo train")
+
+
+def add_backend_options(p: argparse.ArgumentParser) -> None:
+    """Where the units of a sweep run (:mod:`tpo.experiments.engine`)."""
+    p.add_argument("--backend", choices=("local", "ray"), help="local worker processes "
+                   "(default) or tasks on a Ray cluster (pip install 'tpo[ray]')")
+    p.add_argument("--workers", type=int, help="local: worker processes (default 2)")
+    p.add_argument("--address", help="ray: the cluster's address (default auto: the cluster "
+                                     "this machine belongs to)")
+    p.add_argument("--storage", metavar="DIR",
+                   help="ray: a folder every node and this machine share, for the units' "
+                        "checkpoints (default: sent to this machine)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -547,7 +565,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int,
                    help="env steps per run of a panel of full share (default 1,500,000; "
                         "each panel's runs train its share: docs/reproduce.md)")
-    p.add_argument("--workers", type=int, help="worker processes (default 2)")
+    add_backend_options(p)
     p.add_argument("--constraint", choices=(*CONSTRAINTS, "both"),
                    help="the form of the constraint (default penalty, the default "
                         "learner's); both: every form side by side on the same seeds")
@@ -570,6 +588,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--edge-slack", metavar="E,...",
                    help="per edge (in the order tpo solve prints): x for the swept value or "
                         "a fixed slack, e.g. 0,x (default: every edge takes x)")
+    p.add_argument("--dynamics", choices=("grid", "continuous"), default="grid",
+                   help="grid (default) or continuous: judged at value level against the "
+                        "continuous env's finite reference (tpo solve --dynamics continuous)")
+    p.add_argument("--action", choices=("velocity", "heading"),
+                   help="continuous: the action kind (default velocity)")
     p.add_argument("--exact-only", action="store_true",
                    help="LAR's curve alone (seconds), no training")
     p.add_argument("--seeds", type=int, help="seeds per slack value (default 5)")
@@ -577,14 +600,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--slacks-per-unit", type=int,
                    help="slack values per unit of work (one compiled program of these x "
                         "every seed; default 1)")
-    p.add_argument("--backend", choices=("local", "ray"), help="local worker processes "
-                   "(default) or tasks on a Ray cluster (pip install 'tpo[ray]')")
-    p.add_argument("--workers", type=int, help="local: worker processes (default 2)")
-    p.add_argument("--address", help="ray: the cluster's address (default auto: the cluster "
-                                     "this machine belongs to)")
-    p.add_argument("--storage", metavar="DIR",
-                   help="ray: a folder every node and this machine share, for the units' "
-                        "checkpoints (default: sent to this machine)")
+    add_backend_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_fields(p, TPOConfig, "hyperparameters (TPOConfig)")
     p.set_defaults(handler=cmd_sweep)

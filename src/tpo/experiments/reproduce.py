@@ -125,7 +125,7 @@ def reproduce(out: str | Path, settings: Settings | None = None,
     learner config) is refused; panels already in ``out/panels`` are skipped.
     ``progress({job: fraction})`` is called at the start and as panels advance
     (keys: the names of :meth:`Settings.jobs`). ``settings`` default to the
-    paper's (:class:`Settings`); ``backend`` to ``settings.workers`` local workers.
+    paper's (:class:`Settings`); ``backend`` to two local workers.
     """
     settings = settings or Settings()
     check_settings(settings)
@@ -133,7 +133,6 @@ def reproduce(out: str | Path, settings: Settings | None = None,
     (out / "panels").mkdir(parents=True, exist_ok=True)
     settings_file = out / "settings.json"
     mine = asdict(settings)
-    mine.pop("workers")
     mine["learners"] = {form: learner(form, settings).to_dict() for form in settings.forms}
     mine = json.loads(json.dumps(mine))
     if settings_file.exists():
@@ -146,7 +145,7 @@ def reproduce(out: str | Path, settings: Settings | None = None,
         write_atomic(settings_file, json.dumps(mine))
     units = [Unit(name, run_panel, (form, panel, xs, settings))
              for name, form, panel, xs in settings.jobs()]
-    found = run_units(units, backend or LocalBackend(settings.workers), out / "panels",
+    found = run_units(units, backend or LocalBackend(), out / "panels",
                       None if progress is None else lambda t: progress(dict(t.fractions)))
     records = {form: {p.name: found[name] for name, f, p, _ in settings.jobs() if f == form}
                for form in settings.forms}

@@ -36,12 +36,13 @@ from tpo.envs import OBJECTIVES, grid_model, load_map
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Tracker, Unit, run_units
 from tpo.experiments.report import CSV_FIELDS, VERDICTS, record_rows, slack_table
+from tpo.experiments.runspec import ACTION_KINDS, DYNAMICS
 from tpo.graph import ObjectiveGraph
 from tpo.locking import LOCK_FILE
 from tpo.tabular import Judge, solve_lar
 
 if TYPE_CHECKING:
-    from tpo.envs.grid import GridNav
+    from tpo.envs import ContinuousNav, GridNav
 
 SWEPT = "x"  # an edge of SweepSpec.edge_slack that takes the x-axis value
 EXACT_FIELDS = ("x", "slack", "objective", "v_star", "lar", "floor", "lar_feasible")
@@ -57,6 +58,8 @@ class SweepSpec:
 
     map: str = "home"
     dag: str = "M>A>G"
+    dynamics: str = "grid"  # or "continuous" (tpo.experiments.runspec.DYNAMICS)
+    action: str = "velocity"  # continuous: velocity or heading
     xs: tuple[float, ...] = (0.0, 1.0, 2.0, 5.0, 10.0, 100.0)
     edge_slack: tuple[str, ...] = ()  # per edge: SWEPT or a fixed slack; () = every edge swept
     seeds: int = 5
@@ -75,7 +78,12 @@ class SweepSpec:
     def check(self, learned: bool = True) -> None:
         """Raise one line on anything the sweep would refuse (``learned``: its runs'
         too), before anything is made."""
-        navmap = load_map(self.map)
+        load_map(self.map)
+        if self.dynamics not in DYNAMICS or self.action not in ACTION_KINDS:
+            raise SweepError(f"dynamics must be one of {', '.join(DYNAMICS)} and action one "
+                             f"of {', '.join(ACTION_KINDS)}")
+        if self.dynamics == "grid" and self.action != SweepSpec.action:
+            raise SweepError("--action is an option of continuous dynamics")
         if not self.xs or any(not math.isfinite(x) or x < 0 for x in self.xs) \
                 or any(b <= a for a, b in pairwise(self.xs)):
             raise SweepError("--slack needs increasing finite values >= 0, e.g. 0,1,2,5,10,100")
@@ -103,10 +111,9 @@ class SweepSpec:
                              f"({len(self.xs)}), got {self.slacks_per_unit}")
         from tpo.algo import Trainer
         from tpo.algo.config import ConfigError
-        from tpo.envs.grid import GridNav
 
         try:
-            Trainer(GridNav(navmap), graph, self.config, self.steps)
+            Trainer(self.env(), graph, self.config, self.steps)
         except ConfigError as err:
             raise ConfigError(f"each run of the sweep: {err}") from None
 
@@ -117,13 +124,23 @@ class SweepSpec:
 
     def problem(self) -> dict[str, Any]:
         """What the exact curve depends on."""
-        return {"map": self.map, "dag": self.dag, "xs": list(self.xs),
+        return {"map": self.map, "dag": self.dag, "dynamics": self.dynamics,
+                "action": self.action if self.dynamics == "continuous" else None,
+                "xs": list(self.xs),
                 "edge_slack": list(self.edge_slack), "gamma": self.config.gamma}
 
     def learning(self) -> dict[str, Any]:
         """What the learned runs depend on beyond the problem."""
         return {"seeds": self.seeds, "steps": self.steps,
                 "slacks_per_unit": self.slacks_per_unit, "config": self.config.to_dict()}
+
+    def env(self) -> GridNav | ContinuousNav:
+        """The training env: episodes start anywhere (evaluation: at the map's start)."""
+        from tpo.envs import ContinuousNav, GridNav
+
+        if self.dynamics == "continuous":
+            return ContinuousNav(load_map(self.map), action=self.action, random_start=True)
+        return GridNav(load_map(self.map), random_start=True)
 
     def xlabel(self) -> str:
         edges = self.graph().edges
@@ -141,16 +158,24 @@ def _number(text: str) -> bool:
 
 # -------------------------------------------------------------------- exact
 def exact_curve(spec: SweepSpec) -> dict[str, Any]:
-    """LAR on the map's grid model at every x: each objective's ``V*`` (its own
-    constrained optimum; None off the DAG), the values of LAR's leaf policy, the
-    floors of the LAR-correct criterion, and feasibility (relaxed where not)."""
-    grid = grid_model(load_map(spec.map), gamma=spec.config.gamma)
+    """LAR on the map's grid model (continuous: the env's finite reference) at every
+    x: each objective's ``V*`` (its own constrained optimum; None off the DAG), the
+    values of LAR's leaf policy, the floors of the LAR-correct criterion, and
+    feasibility (relaxed where not)."""
+    if spec.dynamics == "continuous":
+        from tpo.envs import ContinuousNav
+        from tpo.envs.continuous_model import continuous_model
+
+        model = continuous_model(ContinuousNav(load_map(spec.map), action=spec.action),
+                                 gamma=spec.config.gamma).model
+    else:
+        model = grid_model(load_map(spec.map), gamma=spec.config.gamma).model
     graph = spec.graph()
-    objectives = list(grid.model.objectives)
+    objectives = list(model.objectives)
     curve: dict[str, Any] = {"x": list(spec.xs), "slacks": [], "objectives": objectives,
                              "v_star": [], "lar": [], "floors": [], "feasible": []}
     for x in spec.xs:
-        sol = solve_lar(grid.model, graph.with_slack(spec.slack(x)), relax=True)
+        sol = solve_lar(model, graph.with_slack(spec.slack(x)), relax=True)
         stars, values, floors = sol.start_values(), sol.start_policy_values(), \
             Judge(sol).floors
         curve["slacks"].append(spec.slack(x))
@@ -192,17 +217,11 @@ def run_unit(spec: SweepSpec, xs: list[float], link: Link) -> dict[str, Any]:
     """Train and judge every seed at the slacks of ``xs`` (a unit, in a worker)."""
     from tpo.experiments.sweep import run_sweep
 
-    result = run_sweep(_env(spec), spec.dag, [spec.slack(x) for x in xs],
+    result = run_sweep(spec.env(), spec.dag, [spec.slack(x) for x in xs],
                        list(range(spec.seeds)), spec.config, spec.steps,
                        progress=lambda done, total: link.progress(done / total),
                        checkpoint=link)
     return {"x": xs, **result.record()}
-
-
-def _env(spec: SweepSpec) -> GridNav:
-    from tpo.envs.grid import GridNav
-
-    return GridNav(load_map(spec.map), random_start=True)
 
 
 def merge(records: list[dict[str, Any]]) -> dict[str, Any]:

@@ -2,9 +2,10 @@
 
 The trainer's ``run`` is vmapped over seeds and then over slack vectors, so
 ``S`` slacks × ``N`` seeds train as one jitted program (chunked only to report
-progress). Each learned greedy leaf policy is then evaluated exactly on the
-grid's tabular model and by Monte Carlo, beside LAR's solution of the same DAG,
-slack and gamma.
+progress). Each learned greedy leaf policy is then evaluated beside LAR's
+solution of the same DAG, slack and gamma: on a grid exactly on its tabular
+model (and by Monte Carlo); in continuous space against the env's finite
+reference (:mod:`tpo.envs.continuous_model`), at value level.
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo import TPOConfig, Trainer, TrainState
-from tpo.algo.evaluate import episode_returns
+from tpo.algo.evaluate import CONTINUOUS_TOL, episode_returns, greedy_path, noise_free
 from tpo.algo.persist import restore_state, state_bytes
 from tpo.algo.phases import Acting
+from tpo.envs.continuous import ContinuousNav
+from tpo.envs.continuous_model import continuous_model, path_category
 from tpo.envs.grid import GridNav
 from tpo.envs.spec import from_spec
 from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
-from tpo.tabular import Judge, solve_lar
+from tpo.tabular import Judge, solve_lar, tolerance
 
 
 @dataclass(frozen=True)
@@ -39,13 +42,19 @@ class SweepResult:
         objectives: reward columns (the last axis of every value array).
         slacks: ``[S, n_edges]`` local slack of every run.
         seeds: the ``N`` seeds.
-        exact: ``[S, N, k]`` exact discounted values of the learned greedy policy.
-        mc: ``[S, N, k]`` mean discounted Monte Carlo return of the greedy policy.
+        exact: ``[S, N, k]`` exact discounted values of the learned greedy policy
+            (continuous: of its noise-free episode from the start).
+        mc: ``[S, N, k]`` mean discounted Monte Carlo return of the greedy policy
+            (continuous: with the env's noise).
         lar: ``[S, k]`` exact values of LAR's leaf policy (the completion).
         feasible: ``[S]`` whether LAR found the problem feasible (else relaxed).
-        policies: ``[S, N, n_states]`` the learned greedy actions on the grid model.
+        policies: ``[S, N, n_states]`` the learned greedy actions on the grid model
+            (None in continuous space).
         lar_correct, strict, same_values: ``[S, N]`` the verdicts of
-            :class:`tpo.tabular.Judge` (docs/design.md §6).
+            :class:`tpo.tabular.Judge` (docs/design.md §6); in continuous space at
+            value level within 5 % (``CONTINUOUS_TOL``), strict meaning also the
+            path's category (goal reached, avoid region entered, monitor region
+            at the end) is the reference path's.
     """
 
     graph: ObjectiveGraph
@@ -56,7 +65,7 @@ class SweepResult:
     mc: np.ndarray
     lar: np.ndarray
     feasible: np.ndarray
-    policies: np.ndarray
+    policies: np.ndarray | None
     lar_correct: np.ndarray
     strict: np.ndarray
     same_values: np.ndarray
@@ -74,8 +83,9 @@ class SweepResult:
 Progress = Callable[[int, int], None]
 
 
-def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence[float]],
-              seeds: Sequence[int], config: TPOConfig, total_timesteps: int, *,
+def run_sweep(env: GridNav | ContinuousNav, dag: str | ObjectiveGraph,
+              slacks: Sequence[Sequence[float]], seeds: Sequence[int], config: TPOConfig,
+              total_timesteps: int, *,
               episodes: int = 8, chunk_updates: int = 32, progress: Progress | None = None,
               checkpoint: Checkpoint | None = None) -> SweepResult:
     """Train ``dag`` at every slack vector × seed in one compiled run and evaluate.
@@ -120,8 +130,9 @@ def run_sweep(env: GridNav, dag: str | ObjectiveGraph, slacks: Sequence[Sequence
     finish = partial(trainer.finish, env=from_spec(env.to_spec(), evaluation=True))
     states = jax.jit(jax.vmap(jax.vmap(finish, in_axes=(0, None))))(states, slack_j)
     actings = jax.vmap(jax.vmap(trainer.acting, in_axes=(0, None)))(states, slack_j)
-    return evaluate_sweep(trainer, actings, env, graphs, np.asarray(slacks, np.float64),
-                          tuple(seeds), episodes)
+    evaluate = evaluate_sweep if hasattr(env, "tabular") else evaluate_reference_sweep
+    return evaluate(trainer, actings, env, graphs, np.asarray(slacks, np.float64),
+                    tuple(seeds), episodes)
 
 
 class Checkpoint(Protocol):
@@ -170,3 +181,44 @@ def evaluate_sweep(trainer: Trainer, actings: Acting, env: GridNav,
              for name in ("lar_correct", "strict", "same_values")}
     return SweepResult(graphs[0], tuple(env.objectives), slacks, seeds, exact, mc, lar,
                        np.array([s.feasible for s in solutions]), policies, **flags)
+
+
+def evaluate_reference_sweep(trainer: Trainer, actings: Acting, env: ContinuousNav,
+                             graphs: Sequence[ObjectiveGraph], slacks: np.ndarray,
+                             seeds: tuple[int, ...], episodes: int) -> SweepResult:
+    """The continuous counterpart of :func:`evaluate_sweep`: each greedy policy's
+    noise-free episode and its Monte Carlo return with the env's noise, judged
+    against the env's finite reference (solved once per slack)."""
+    eval_env = from_spec(env.to_spec(), evaluation=True)
+    gamma = trainer.config.gamma
+    ref = continuous_model(eval_env, gamma)
+    path = jax.jit(jax.vmap(jax.vmap(partial(greedy_path, trainer.policy,
+                                             env=noise_free(eval_env, gamma), gamma=gamma))))
+    positions, alive, returns = map(np.asarray, path(actings))
+    keys = jax.random.split(jax.random.key(0), episodes)
+    mc_run = jax.jit(jax.vmap(jax.vmap(
+        lambda p: episode_returns(trainer.policy, p, eval_env, keys, True, gamma)[1].mean(0))))
+    mc = np.asarray(mc_run(actings), np.float64)
+    objectives = tuple(env.objectives)
+    lar_values, feasible, flags = [], [], {"lar_correct": [], "strict": [], "same_values": []}
+    for s, graph in enumerate(graphs):
+        lar = solve_lar(ref.model, graph, relax=True)
+        judge, reference = Judge(lar), ref.category(lar.policy)
+        policy_values = lar.start_policy_values()
+        lar_values.append([policy_values[n] for n in objectives])
+        feasible.append(lar.feasible)
+        rows = {k: [] for k in flags}
+        for n in range(len(seeds)):
+            values = dict(zip(objectives, map(float, returns[s, n]), strict=True))
+            correct = judge.lar_correct(values, CONTINUOUS_TOL)
+            matches = path_category(env.navmap, positions[s, n][alive[s, n]]) == reference
+            rows["lar_correct"].append(correct)
+            rows["strict"].append(correct and matches)
+            rows["same_values"].append(all(
+                abs(values[k] - policy_values[k]) <= tolerance(policy_values[k], CONTINUOUS_TOL)
+                for k in objectives))
+        for k in flags:
+            flags[k].append(rows[k])
+    return SweepResult(graphs[0], objectives, slacks, seeds, returns.astype(np.float64), mc,
+                       np.array(lar_values), np.array(feasible), None,
+                       **{k: np.array(v) for k, v in flags.items()})
