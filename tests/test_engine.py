@@ -76,6 +76,12 @@ def test_the_tracker_records_where_each_attempt_started():
     tracker.progress("a", 0.25)  # a late report of the dead worker never moves it back
     assert tracker.attempts == {"a": [[11, 0.0], [12, 0.5]]}
     assert tracker.fractions == {"a": 0.5}
+    # A Ray unit's result may arrive before its reports: its attempt comes with it.
+    tracker = Tracker({"b": 0.0})
+    tracker.finished("b", 21, 0.0)
+    tracker.begin("b", 21)
+    tracker.progress("b", 0.25)
+    assert tracker.attempts == {"b": [[21, 0.0]]}
 
 
 def test_the_local_backend_runs_units_in_worker_processes(tmp_path):
@@ -101,3 +107,11 @@ def test_backends_are_named_with_their_own_options():
         backend("local", address="auto")
     with pytest.raises(TPOError, match=r"^--workers must be at least 1$"):
         backend("local", 0)
+
+
+@pytest.mark.parametrize("text", ["{not json", "[1, 2]", "\udcff"])
+def test_a_damaged_record_is_named_not_misread(tmp_path, text):
+    (tmp_path / "u0.json").write_bytes(text.encode("utf-8", "surrogateescape"))
+    with pytest.raises(TPOError, match=r"u0\.json is not a unit's record.*; delete it to run "
+                                       r"the unit again$"):
+        run_units([Unit("u0", count_to, (2,))], Inline(), tmp_path)

@@ -118,7 +118,18 @@ class Tracker:
     on_change: Callable[[Tracker], None] | None = None
 
     def begin(self, name: str, pid: int) -> None:
-        self.attempts.setdefault(name, []).append([pid, None])
+        attempts = self.attempts.setdefault(name, [])
+        if not attempts or attempts[-1][0] != pid:  # else known from its result
+            attempts.append([pid, None])
+
+    def finished(self, name: str, pid: int, start: float | None) -> None:
+        """The attempt of worker ``pid`` that finished ``name`` started at ``start``
+        (for backends whose reports may come after the result)."""
+        attempts = self.attempts.setdefault(name, [])
+        if not attempts or attempts[-1][0] != pid:
+            attempts.append([pid, None])
+        if attempts[-1][1] is None:
+            attempts[-1][1] = start
 
     def progress(self, name: str, fraction: float) -> None:
         attempts = self.attempts.get(name)
@@ -153,8 +164,8 @@ def run_units(units: Sequence[Unit], backend: Backend, folder: Path,
     unless the backend keeps it elsewhere). ``progress(tracker)`` at the start and
     whenever a unit advances."""
     folder.mkdir(parents=True, exist_ok=True)
-    records = {u.name: json.loads((folder / f"{u.name}.json").read_text())
-               for u in units if (folder / f"{u.name}.json").exists()}
+    records = {u.name: _read(folder / f"{u.name}.json") for u in units
+               if (folder / f"{u.name}.json").exists()}
     tracker = Tracker({u.name: float(u.name in records) for u in units}, on_change=progress)
     if progress is not None:
         progress(tracker)
@@ -169,6 +180,17 @@ def run_units(units: Sequence[Unit], backend: Backend, folder: Path,
     if todo:
         backend.run(todo, tracker, done, folder)
     return {u.name: records[u.name] for u in units}
+
+
+def _read(path: Path) -> dict[str, Any]:
+    try:
+        record = json.loads(path.read_text())
+    except (UnicodeDecodeError, ValueError) as err:
+        raise TPOError(f"{path} is not a unit's record ({err}); delete it to run the unit "
+                       "again") from None
+    if not isinstance(record, dict):
+        raise TPOError(f"{path} is not a unit's record; delete it to run the unit again")
+    return record
 
 
 # -------------------------------------------------------------------- local
@@ -237,11 +259,20 @@ class LocalBackend(Backend):
 # ---------------------------------------------------------------------- ray
 class RayLink(Link):
     """A Ray task's link: progress to the driver's store actor; the checkpoint in a
-    file under ``storage`` (shared storage) or, without it, kept by the store."""
+    file under ``storage`` (shared storage) or, without it, sent to the store, the
+    unit's last one handed to the task by the driver (``data``).
 
-    def __init__(self, name: str, every: float, store: Any, storage: Path | None) -> None:
+    Nothing here waits on the store: a task blocked in ``ray.get`` lends its CPU
+    to another task, and the node would run more units than it has CPUs. So a
+    checkpoint sent to the store may be lost with its worker (the unit then
+    resumes from the one before), and the attempt's start (``first``, its first
+    report) also travels back with its result."""
+
+    def __init__(self, name: str, every: float, store: Any, storage: Path | None,
+                 data: bytes | None) -> None:
         super().__init__(name, every)
-        self.store, self.storage = store, storage
+        self.store, self.storage, self.data = store, storage, data
+        self.first: float | None = None
 
     @property
     def where(self) -> str:
@@ -249,26 +280,22 @@ class RayLink(Link):
             return str(self.storage / f"{self.name}.ckpt")
         return super().where
 
-    def progress(self, fraction: float) -> None:
-        import ray
+    def _file(self) -> FileLink:
+        return FileLink(self.name, self.every, self.storage / f"{self.name}.ckpt")
 
-        # Waited for: the driver sees it before the unit's result.
-        ray.get(self.store.progress.remote(self.name, fraction))
+    def progress(self, fraction: float) -> None:
+        if self.first is None:
+            self.first = fraction
+        self.store.progress.remote(self.name, fraction)
 
     def load(self) -> bytes | None:
-        import ray
-
-        if self.storage is not None:
-            return FileLink(self.name, self.every, self.storage / f"{self.name}.ckpt").load()
-        return ray.get(self.store.load.remote(self.name))
+        return self.data if self.storage is None else self._file().load()
 
     def save(self, data: bytes) -> None:
-        import ray
-
-        if self.storage is not None:
-            FileLink(self.name, self.every, self.storage / f"{self.name}.ckpt").save(data)
-        else:  # kept once the driver's store has written it
-            ray.get(self.store.save.remote(self.name, data))
+        if self.storage is None:
+            self.store.save.remote(self.name, data)
+        else:
+            self._file().save(data)
 
 
 class Store:
@@ -292,25 +319,23 @@ class Store:
     def save(self, name: str, data: bytes) -> None:
         write_atomic(self.folder / f"{name}.ckpt", data)
 
-    def load(self, name: str) -> bytes | None:
-        path = self.folder / f"{name}.ckpt"
-        return path.read_bytes() if path.exists() else None
 
-
-def _run_ray(unit: Unit, store: Any, storage: str | None, every: float) -> dict[str, Any]:
-    import ray
-
-    ray.get(store.begin.remote(unit.name, os.getpid()))
-    link = RayLink(unit.name, every, store, None if storage is None else Path(storage))
-    return unit.fn(*unit.args, link)
+def _run_ray(unit: Unit, store: Any, storage: str | None, every: float, data: bytes | None
+             ) -> tuple[dict[str, Any], list]:
+    """A unit as a Ray task: its record, and its attempt (pid, start)."""
+    store.begin.remote(unit.name, os.getpid())
+    link = RayLink(unit.name, every, store, None if storage is None else Path(storage), data)
+    record = unit.fn(*unit.args, link)
+    return record, [os.getpid(), link.first]
 
 
 @dataclass
 class RayBackend(Backend):
     """Each unit a Ray task (one CPU, one XLA thread) on the cluster at ``address``
     (``auto``: the one this machine belongs to), started again from its checkpoint
-    when its worker dies. Checkpoints: files under ``storage`` (a folder every node
-    and the driver share), or without it, sent to the driver."""
+    (up to ``RAY_RETRIES`` times) when its worker or node dies. Checkpoints: files
+    under ``storage`` (a folder every node and the driver share), or without it,
+    sent to the driver."""
 
     address: str = "auto"
     storage: Path | None = None
@@ -355,32 +380,47 @@ class RayBackend(Backend):
                                               soft=False)
         store = ray.remote(num_cpus=0)(Store).options(scheduling_strategy=here) \
             .remote(str(checkpoints))
-        task = ray.remote(num_cpus=1, max_retries=RAY_RETRIES, retry_exceptions=False)(_run_ray)
+        # Retried here, not by Ray: a retried task would get its first arguments again.
+        task = ray.remote(num_cpus=1, max_retries=0)(_run_ray)
         storage = None if self.storage is None else str(checkpoints)
-        pending = {task.remote(u, store, storage, self.every): u.name for u in units}
+
+        def submit(unit: Unit) -> Any:
+            data = None if storage is not None else FileLink(
+                unit.name, self.every, checkpoints / f"{unit.name}.ckpt").load()
+            return task.remote(unit, store, storage, self.every, data)
 
         def drain() -> None:
             for kind, name, value in ray.get(store.take.remote()):
                 (tracker.begin if kind == "begin" else tracker.progress)(name, value)
 
+        pending = {submit(u): u for u in units}
+        retries = dict.fromkeys((u.name for u in units), 0)
         try:
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
                 drain()
                 for ref in ready:
-                    name = pending.pop(ref)
+                    unit = pending.pop(ref)
                     try:
-                        record = ray.get(ref)
+                        record, attempt = ray.get(ref)
                     except ray.exceptions.RayTaskError as err:  # the unit raised
                         cause = err.cause
                         if isinstance(cause, TPOError):
                             raise cause from None
-                        raise TPOError(f"unit {name} failed on the Ray cluster: "
+                        raise TPOError(f"unit {unit.name} failed on the Ray cluster: "
                                        f"{type(cause).__name__}: {cause}") from None
-                    except ray.exceptions.RayError as err:  # its worker died too often
-                        raise TPOError(f"unit {name} failed on the Ray cluster: "
-                                       f"{str(err).splitlines()[0]}") from None
-                    done(name, record)
+                    except ray.exceptions.RayError as err:  # its worker or node died
+                        if retries[unit.name] == RAY_RETRIES:
+                            raise TPOError(f"unit {unit.name} failed on the Ray cluster "
+                                           f"{RAY_RETRIES + 1} times: "
+                                           f"{str(err).splitlines()[0]}") from None
+                        retries[unit.name] += 1
+                        drain()  # the store has written every checkpoint that reached it
+                        pending[submit(unit)] = unit
+                        continue
+                    drain()
+                    tracker.finished(unit.name, *attempt)
+                    done(unit.name, record)
         finally:
             for ref in pending:
                 ray.cancel(ref, force=True)
