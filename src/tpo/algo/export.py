@@ -11,7 +11,6 @@ dependency of the export on a converter's support for each JAX primitive.
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 from pathlib import Path
@@ -100,7 +99,7 @@ def policy_meta(model: TPO, observation: dict[str, Any]) -> dict[str, Any]:
             "observation": observation, "action": action_meta(model),
             "map": None if navmap is None else {
                 "name": navmap.name,
-                "sha256": hashlib.sha256(navmap.to_toml().encode()).hexdigest()},
+                "sha256": navmap.sha256()},
             "trained_timesteps": model.num_timesteps}
 
 

@@ -20,6 +20,7 @@ and ``goal = [row, col]``. Everything outside the grid counts as wall.
 
 from __future__ import annotations
 
+import hashlib
 import tomllib
 from collections import deque
 from dataclasses import dataclass
@@ -87,6 +88,10 @@ class NavMap:
         free = ~self.walls
         free[self.goal] = False
         return np.argwhere(free)
+
+    def sha256(self) -> str:
+        """The SHA-256 of :meth:`to_toml`: what the map is, whatever its file."""
+        return hashlib.sha256(self.to_toml().encode()).hexdigest()
 
     def to_toml(self) -> str:
         """TOML text that :func:`parse_map` reads back to the same map."""

@@ -124,7 +124,8 @@ class SweepSpec:
 
     def problem(self) -> dict[str, Any]:
         """What the exact curve depends on."""
-        return {"map": self.map, "dag": self.dag, "dynamics": self.dynamics,
+        return {"map": self.map, "map_sha256": load_map(self.map).sha256(), "dag": self.dag,
+                "dynamics": self.dynamics,
                 "action": self.action if self.dynamics == "continuous" else None,
                 "xs": list(self.xs),
                 "edge_slack": list(self.edge_slack), "gamma": self.config.gamma}
