@@ -4,6 +4,7 @@ the unit is recorded, and the local backend runs units in worker processes."""
 
 import json
 import os
+import socket
 
 import pytest
 
@@ -97,16 +98,33 @@ def test_the_local_backend_runs_units_in_worker_processes(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["u0.json", "u1.json", "u2.json"]
 
 
-def test_backends_are_named_with_their_own_options():
+def test_backends_are_named_with_their_own_options(tmp_path):
     assert isinstance(backend("local", 3), LocalBackend) and backend("local", 3).workers == 3
-    ray = backend("ray", address="127.0.0.1:6379", storage="/shared")
-    assert isinstance(ray, RayBackend) and ray.address == "127.0.0.1:6379"
+    assert backend("local").workers == 2
+    with socket.create_server(("127.0.0.1", 0)) as server:  # something that answers
+        address = f"127.0.0.1:{server.getsockname()[1]}"
+        ray = backend("ray", address=address, storage=str(tmp_path))
+    assert isinstance(ray, RayBackend) and ray.address == address and ray.storage == tmp_path
     assert backend("ray").address == "auto"
+    with pytest.raises(TPOError, match=r"^--storage .*nowhere is not a directory$"):
+        backend("ray", storage=str(tmp_path / "nowhere"))
     with pytest.raises(TPOError, match=r"^--address and --storage are options of "
                                        r"--backend ray$"):
         backend("local", address="auto")
     with pytest.raises(TPOError, match=r"^--workers must be at least 1$"):
         backend("local", 0)
+    with pytest.raises(TPOError, match=r"^--workers is an option of --backend local"):
+        backend("ray", 3)
+
+
+@pytest.mark.parametrize(("address", "message"), [
+    ("127.0.0.1:1", r"^cannot connect to the Ray cluster at 127\.0\.0\.1:1: Connection refused$"),
+    ("ray://127.0.0.1:1", r"^--address 'ray://127\.0\.0\.1:1': give the cluster's HOST:PORT"),
+    ("nohost", r"^--address 'nohost': give the cluster's HOST:PORT"),
+])
+def test_a_ray_address_that_cannot_answer_fails_at_once_in_one_line(address, message):
+    with pytest.raises(TPOError, match=message):
+        backend("ray", address=address)
 
 
 @pytest.mark.parametrize("text", ["{not json", "[1, 2]", "\udcff"])

@@ -5,6 +5,7 @@ killed mid-unit."""
 import contextlib
 import csv
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -79,12 +80,29 @@ def test_the_exact_curve_is_lars_at_every_slack(tmp_path, capsys):
     (["--slack", "0,1", "--seeds", "0"], "--seeds must be from 1 to 1000, got 0"),
     (["--slack", "0,1", "--slacks-per-unit", "3"],
      "--slacks-per-unit must be from 1 to the number of slack values (2), got 3"),
+    (["--slack", "0,1e31", "--exact-only"], "--slack values above 1e+30 are not supported "
+     "(training is in float32; a slack that large is no constraint)"),
+    (["--slack", "0,1", "--dag", "M", "--exact-only"], "the DAG 'M' has no edges: no slack "
+                                                        "to sweep"),
 ])
 def test_bad_sweeps_are_one_line_and_make_nothing(tmp_path, capsys, extra, message):
     out = tmp_path / "never"
     assert main(["sweep", "--out", str(out), *extra]) == 2
     assert capsys.readouterr().err.strip() == f"tpo: error: {message}"
     assert not out.exists()
+
+
+def test_an_exact_curve_takes_gamma_and_a_damaged_settings_file_is_refused(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    assert main(["sweep", "--exact-only", "--map", "small", "--slack", "0", "--gamma", "0.9",
+                 "--out", str(out)]) == 0
+    assert '"gamma": 0.9' in (out / "settings.json").read_text()
+    (out / "settings.json").write_text('{"kind": "tpo sweep", "problem": [1]}')
+    capsys.readouterr()
+    assert main(["sweep", "--exact-only", "--map", "small", "--slack", "0", "--out",
+                 str(out)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"tpo: error: {out / 'settings.json'} is damaged; choose another --out")
 
 
 def test_a_folder_of_the_users_is_not_a_sweep(tmp_path, capsys):
@@ -129,6 +147,17 @@ def test_a_learned_sweep_writes_results_figure_and_report_and_resumes(local_swee
     assert (out / "results.csv").read_text() == csv_before
     assert main(["sweep", *LEARNED[:-1], "16", "--out", str(out), "--quiet"]) == 2
     assert "holds a sweep with other settings (in config" in capsys.readouterr().err
+    # A unit's record that is not this sweep's (here: two swapped) is named, not used.
+    copy = out.parent / "copy"
+    shutil.copytree(out, copy)
+    (copy / ".tpo.lock").unlink(missing_ok=True)
+    first, second = (copy / "units" / f"unit-00{i}.json" for i in (0, 1))
+    text = first.read_text()
+    first.write_text(second.read_text())
+    second.write_text(text)
+    assert main(["sweep", *LEARNED, "--out", str(copy), "--quiet"]) == 2
+    assert capsys.readouterr().err.strip().endswith(
+        "unit-000.json is not this sweep's unit of slacks 0; delete it to run the unit again")
 
 
 CLUSTER = textwrap.dedent("""

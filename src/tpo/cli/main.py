@@ -350,8 +350,7 @@ def backend_of(args: argparse.Namespace):
     ``--storage`` name (:func:`add_backend_options`)."""
     from tpo.experiments.engine import backend
 
-    return backend(args.backend or "local", 2 if args.workers is None else args.workers,
-                   args.address, args.storage)
+    return backend(args.backend or "local", args.workers, args.address, args.storage)
 
 
 # ---------------------------------------------------------------- reproduce
@@ -417,8 +416,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                 "slacks_per_unit": args.slacks_per_unit, **{k: getattr(args, k) for k in (
                     "backend", "workers", "address", "storage")}}
     config = read_fields(args, TPOConfig)
-    if args.exact_only:
-        given = [k for k, v in learning.items() if v is not None] + list(config)
+    if args.exact_only:  # gamma is part of the exact problem; the rest trains
+        given = [k for k, v in learning.items() if v is not None] + [
+            k for k in config if k != "gamma"]
         if given:
             raise UsageError(f"--exact-only trains nothing: drop --{given[0].replace('_', '-')}")
     chosen = {k: v for k, v in learning.items() if v is not None and k in

@@ -28,6 +28,7 @@ import json
 import logging
 import os
 import signal
+import socket
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, wait
@@ -208,6 +209,9 @@ def _init_worker(queue: Any, parent: int) -> None:
     global _events
     _events = queue
     os.environ["XLA_FLAGS"] = single_thread_flags()
+    # Ctrl-C reaches the whole process group: the driver says "interrupted"; a worker
+    # ends without a traceback of its own.
+    signal.signal(signal.SIGINT, lambda *_: os._exit(130))
     if sys.platform.startswith("linux"):
         # The signal follows the *thread* that started the worker: ProcessPoolExecutor
         # starts workers from submit(), in the caller's (main) thread.
@@ -435,17 +439,40 @@ def _import_ray() -> Any:
     return ray
 
 
-def backend(name: str, workers: int = 2, address: str | None = None,
+def backend(name: str, workers: int | None = None, address: str | None = None,
             storage: str | None = None) -> Backend:
-    """The backend a command line names: ``local`` (``workers`` processes) or ``ray``
-    (the cluster at ``address``, checkpoints under ``storage`` if given)."""
+    """The backend a command line names: ``local`` (``workers`` processes, default 2)
+    or ``ray`` (the cluster at ``address``, checkpoints under ``storage`` if given),
+    checked before anything is made: a Ray address must answer."""
     if name == "local":
         if address is not None or storage is not None:
             raise TPOError("--address and --storage are options of --backend ray")
-        if workers < 1:
+        if workers is not None and workers < 1:
             raise TPOError("--workers must be at least 1")
-        return LocalBackend(workers)
+        return LocalBackend(2 if workers is None else workers)
     if name == "ray":
+        if workers is not None:
+            raise TPOError("--workers is an option of --backend local (a Ray cluster runs "
+                           "as many units as it has CPUs)")
+        if storage is not None and not Path(storage).is_dir():
+            raise TPOError(f"--storage {storage} is not a directory")
+        _check_address(address or "auto")
         return RayBackend(address or "auto", None if storage is None else Path(storage))
     raise TPOError(f"unknown backend {name!r}: choose local or ray")
+
+
+def _check_address(address: str) -> None:
+    """Fail fast, in one line, where ``ray.init`` would retry for minutes: an address
+    that is not ``auto`` or ``HOST:PORT``, or nothing listening there."""
+    if address == "auto":
+        return
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or "/" in address or not port.isdigit():
+        raise TPOError(f"--address {address!r}: give the cluster's HOST:PORT (what `ray start "
+                       "--head` prints), or auto")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=5).close()
+    except OSError as err:
+        raise TPOError(f"cannot connect to the Ray cluster at {address}: "
+                       f"{err.strerror or err}") from None
 

@@ -45,6 +45,7 @@ if TYPE_CHECKING:
     from tpo.envs import ContinuousNav, GridNav
 
 SWEPT = "x"  # an edge of SweepSpec.edge_slack that takes the x-axis value
+MAX_SLACK = 1e30  # larger slacks overflow float32 (and constrain nothing)
 EXACT_FIELDS = ("x", "slack", "objective", "v_star", "lar", "floor", "lar_feasible")
 
 
@@ -87,7 +88,12 @@ class SweepSpec:
         if not self.xs or any(not math.isfinite(x) or x < 0 for x in self.xs) \
                 or any(b <= a for a, b in pairwise(self.xs)):
             raise SweepError("--slack needs increasing finite values >= 0, e.g. 0,1,2,5,10,100")
+        if self.xs[-1] > MAX_SLACK:
+            raise SweepError(f"--slack values above {MAX_SLACK:g} are not supported (training "
+                             "is in float32; a slack that large is no constraint)")
         graph = self.graph()
+        if not graph.edges:
+            raise SweepError(f"the DAG {self.dag!r} has no edges: no slack to sweep")
         if self.edge_slack:
             if len(self.edge_slack) != len(graph.edges):
                 n = len(self.edge_slack)
@@ -225,6 +231,20 @@ def run_unit(spec: SweepSpec, xs: list[float], link: Link) -> dict[str, Any]:
     return {"x": xs, **result.record()}
 
 
+def check_record(record: dict[str, Any], xs: list[float], seeds: int, path: Path) -> None:
+    """Raise unless ``record`` is the unit of slacks ``xs`` × ``seeds`` seeds."""
+    try:
+        ok = record["x"] == xs and all(
+            np.shape(record[k]) == (len(xs), seeds, len(record["objectives"]))
+            for k in ("exact", "mc")) and np.shape(record["lar"])[0] == len(xs) and all(
+            np.shape(record[k]) == (len(xs), seeds) for k in VERDICTS)
+    except (KeyError, TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise SweepError(f"{path} is not this sweep's unit of slacks "
+                         f"{', '.join(f'{x:g}' for x in xs)}; delete it to run the unit again")
+
+
 def merge(records: list[dict[str, Any]]) -> dict[str, Any]:
     """The units' records as one, along the slack axis."""
     merged = dict(records[0])
@@ -295,6 +315,9 @@ def claim(out: Path, spec: SweepSpec, learned: bool) -> None:
             raise SweepError(f"cannot read {settings}: {err}") from None
         if not isinstance(theirs, dict) or theirs.get("kind") != "tpo sweep":
             raise SweepError(f"{out} is not a tpo sweep directory; choose another --out")
+        if not isinstance(theirs.get("problem"), dict) or not isinstance(
+                theirs.get("learning"), dict | None):
+            raise SweepError(f"{settings} is damaged; choose another --out")
         for part in ("problem", "learning"):
             if mine[part] is not None and theirs.get(part) is not None \
                     and theirs[part] != mine[part]:
@@ -331,6 +354,8 @@ def sweep(out: str | Path, spec: SweepSpec, backend: Backend | None = None,
         return Sweep(out, curve, None)
     units = [Unit(name, run_unit, (spec, xs)) for name, xs in spec.units()]
     found = run_units(units, backend or LocalBackend(), out / "units", progress)
+    for name, xs in spec.units():
+        check_record(found[name], xs, spec.seeds, out / "units" / f"{name}.json")
     record = merge([found[u.name] for u in units])
     write_atomic(out / "results.csv", results_csv(spec, record))
     write_atomic(out / "results.json", json.dumps({"settings": json.loads(
