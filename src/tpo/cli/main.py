@@ -412,23 +412,20 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     if not args.out.strip():
         raise UsageError("--out must name a directory")
-    learning = {"seeds": args.seeds, "steps": args.steps,
-                "slacks_per_unit": args.slacks_per_unit, **{k: getattr(args, k) for k in (
-                    "backend", "workers", "address", "storage")}}
+    budget = {k: getattr(args, k) for k in ("seeds", "steps", "slacks_per_unit")
+              if getattr(args, k) is not None}
     config = read_fields(args, TPOConfig)
     if args.exact_only:  # gamma is part of the exact problem; the rest trains
-        given = [k for k, v in learning.items() if v is not None] + [
-            k for k in config if k != "gamma"]
+        given = [*budget, *(k for k in ("backend", "workers", "address", "storage")
+                            if getattr(args, k) is not None), *(k for k in config if k != "gamma")]
         if given:
             raise UsageError(f"--exact-only trains nothing: drop --{given[0].replace('_', '-')}")
-    chosen = {k: v for k, v in learning.items() if v is not None and k in
-              ("seeds", "steps", "slacks_per_unit")}
     if args.action and args.dynamics != "continuous":
         raise UsageError("--action is an option of --dynamics continuous")
     spec = SweepSpec(map=args.map, dag=args.dag, dynamics=args.dynamics,
                      action=args.action or SweepSpec.action, xs=tuple(parse_slack(args.slack)),
                      edge_slack=tuple(v.strip() for v in args.edge_slack.split(","))
-                     if args.edge_slack else (), config=TPOConfig.from_dict(config), **chosen)
+                     if args.edge_slack else (), config=TPOConfig.from_dict(config), **budget)
     spec.check(learned=not args.exact_only)  # before anything is made
     engine = None if args.exact_only else backend_of(args)
     with exclusive(args.out, create=True) as out:

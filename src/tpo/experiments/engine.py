@@ -358,8 +358,6 @@ class RayBackend(Backend):
     def run(self, units: Sequence[Unit], tracker: Tracker, done: Done, folder: Path) -> None:
         ray = _import_ray()
         if self.storage is not None:
-            if not self.storage.is_dir():
-                raise TPOError(f"--storage {self.storage} is not a directory")
             self._checkpoints(folder).mkdir(exist_ok=True)
         started = not ray.is_initialized()
         if started:

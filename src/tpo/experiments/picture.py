@@ -20,7 +20,7 @@ from tpo.envs.grid_model import MOVES
 from tpo.envs.render import PATH_COLORS, draw_map, draw_path
 from tpo.envs.spec import from_spec
 from tpo.errors import TPOError
-from tpo.tabular import solve_lar
+from tpo.tabular import VERDICTS, solve_lar
 
 ADMISSIBLE_COLOR, OUTSIDE_COLOR = "0.25", "tab:red"
 RANDOM_START_COLOR = "tab:orange"
@@ -108,7 +108,7 @@ def _side_panel(ax: Axes, learned: str, rows: list[tuple[str, float, float, floa
     lines += [f"{n:<9} {v + 0.0:>11.2f} {lar + 0.0:>8.2f} "
               f"{'-' if floor is None else f'{floor + 0.0:.2f}':>8}" for n, v, lar, floor in rows]
     lines.append("")
-    verdicts = [k for k in ("lar_correct", "strict", "same_values") if k in result]
+    verdicts = [k for k in VERDICTS if k in result]
     lines += [f"{k.replace('_', ' ')}: {'yes' if result[k] else 'no'}" for k in verdicts]
     if "path_matches" in result:
         lines.append(f"path as the reference's: {'yes' if result['path_matches'] else 'no'}")

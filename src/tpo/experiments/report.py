@@ -17,8 +17,8 @@ import numpy as np
 from tpo.atomic import write_atomic
 from tpo.envs import load_map
 from tpo.experiments.paper import FIGURE3, PANELS, PAPER, Settings, direction
+from tpo.tabular import VERDICTS
 
-VERDICTS = ("lar_correct", "strict", "same_values")  # tpo.tabular.Judge's
 CSV_FIELDS = ("form", "panel", "dag", "x", "slack", "seed", "objective", "exact", "mc", "lar",
               "lar_feasible", *VERDICTS)
 

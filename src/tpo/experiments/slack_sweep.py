@@ -35,11 +35,11 @@ from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, grid_model, load_map
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Tracker, Unit, run_units
-from tpo.experiments.report import CSV_FIELDS, VERDICTS, record_rows, slack_table
+from tpo.experiments.report import CSV_FIELDS, record_rows, slack_table
 from tpo.experiments.runspec import ACTION_KINDS, DYNAMICS
 from tpo.graph import ObjectiveGraph
 from tpo.locking import LOCK_FILE
-from tpo.tabular import Judge, solve_lar
+from tpo.tabular import VERDICTS, Judge, solve_lar
 
 if TYPE_CHECKING:
     from tpo.envs import ContinuousNav, GridNav

@@ -30,7 +30,7 @@ from tpo.envs.grid import GridNav
 from tpo.envs.spec import from_spec
 from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
-from tpo.tabular import Judge, solve_lar, tolerance
+from tpo.tabular import VERDICTS, Judge, solve_lar
 
 
 @dataclass(frozen=True)
@@ -76,8 +76,7 @@ class SweepResult:
                 "objectives": list(self.objectives), "exact": self.exact.tolist(),
                 "mc": self.mc.tolist(), "lar": self.lar.tolist(),
                 "feasible": self.feasible.tolist(),
-                **{k: getattr(self, k).tolist() for k in ("lar_correct", "strict",
-                                                          "same_values")}}
+                **{k: getattr(self, k).tolist() for k in VERDICTS}}
 
 
 Progress = Callable[[int, int], None]
@@ -178,7 +177,7 @@ def evaluate_sweep(trainer: Trainer, actings: Acting, env: GridNav,
     mc = np.asarray(mc_run(actings), np.float64)
     lar = np.array([[s.start_policy_values()[n] for n in env.objectives] for s in solutions])
     flags = {name: np.array([[getattr(v, name) for v in row] for row in verdicts])
-             for name in ("lar_correct", "strict", "same_values")}
+             for name in VERDICTS}
     return SweepResult(graphs[0], tuple(env.objectives), slacks, seeds, exact, mc, lar,
                        np.array([s.feasible for s in solutions]), policies, **flags)
 
@@ -200,25 +199,17 @@ def evaluate_reference_sweep(trainer: Trainer, actings: Acting, env: ContinuousN
         lambda p: episode_returns(trainer.policy, p, eval_env, keys, True, gamma)[1].mean(0))))
     mc = np.asarray(mc_run(actings), np.float64)
     objectives = tuple(env.objectives)
-    lar_values, feasible, flags = [], [], {"lar_correct": [], "strict": [], "same_values": []}
-    for s, graph in enumerate(graphs):
-        lar = solve_lar(ref.model, graph, relax=True)
-        judge, reference = Judge(lar), ref.category(lar.policy)
-        policy_values = lar.start_policy_values()
-        lar_values.append([policy_values[n] for n in objectives])
-        feasible.append(lar.feasible)
-        rows = {k: [] for k in flags}
+    solutions = [solve_lar(ref.model, g, relax=True) for g in graphs]
+    verdicts = np.zeros((len(graphs), len(seeds), len(VERDICTS)), bool)
+    for s, sol in enumerate(solutions):
+        judge, reference = Judge(sol), ref.category(sol.policy)
         for n in range(len(seeds)):
             values = dict(zip(objectives, map(float, returns[s, n]), strict=True))
             correct = judge.lar_correct(values, CONTINUOUS_TOL)
             matches = path_category(env.navmap, positions[s, n][alive[s, n]]) == reference
-            rows["lar_correct"].append(correct)
-            rows["strict"].append(correct and matches)
-            rows["same_values"].append(all(
-                abs(values[k] - policy_values[k]) <= tolerance(policy_values[k], CONTINUOUS_TOL)
-                for k in objectives))
-        for k in flags:
-            flags[k].append(rows[k])
+            verdicts[s, n] = (correct, correct and matches,
+                              judge.same_values(values, CONTINUOUS_TOL))
+    lar = np.array([[s.start_policy_values()[n] for n in objectives] for s in solutions])
     return SweepResult(graphs[0], objectives, slacks, seeds, returns.astype(np.float64), mc,
-                       np.array(lar_values), np.array(feasible), None,
-                       **{k: np.array(v) for k, v in flags.items()})
+                       lar, np.array([s.feasible for s in solutions]), None,
+                       **{k: verdicts[..., i] for i, k in enumerate(VERDICTS)})

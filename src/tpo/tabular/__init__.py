@@ -8,13 +8,14 @@ from tpo.tabular.evaluation import (
     q_values,
     softmax,
 )
-from tpo.tabular.judge import Judge, Verdict, floors, tolerance
+from tpo.tabular.judge import VERDICTS, Judge, Verdict, floors, tolerance
 from tpo.tabular.lagrangian import LagrangianSolution, multiplier_bound, solve_lagrangian
 from tpo.tabular.lar import LARSolution, Solution, solve_lar
 from tpo.tabular.model import TabularTMDP
 
 __all__ = [
     "ATOL",
+    "VERDICTS",
     "VI_TOL",
     "Judge",
     "LARSolution",

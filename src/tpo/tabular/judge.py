@@ -26,6 +26,7 @@ from tpo.tabular.lar import LARSolution
 from tpo.tabular.model import TabularTMDP
 
 REL_TOL, ABS_TOL = 0.02, 0.5
+VERDICTS = ("lar_correct", "strict", "same_values")  # the verdicts of a Verdict
 
 
 def tolerance(reference: np.ndarray | float, rel: float = REL_TOL) -> np.ndarray:
@@ -102,15 +103,19 @@ class Judge:
         policy = np.asarray(policy)
         values = dict(zip(model.objectives, map(float, evaluate_policy(model, policy)[start]),
                           strict=True))
-        reference = self.reference
         correct = self.lar_correct(values)
         on_way = reachable(model, policy) & ~model.terminal
         inside = sol.allowed[graph.leaf][np.arange(model.n_states), policy]
         outside = tuple(int(s) for s in np.flatnonzero(on_way & ~inside))
-        same = all(abs(values[n] - reference[n]) <= tolerance(reference[n])
-                   for n in graph.objectives)
-        return Verdict(bool(correct), bool(correct and not outside), bool(same), sol.feasible,
-                       values, self.optimum, self.floors, reference, outside)
+        return Verdict(bool(correct), bool(correct and not outside),
+                       self.same_values(values), sol.feasible,
+                       values, self.optimum, self.floors, self.reference, outside)
+
+    def same_values(self, values: dict[str, float], rel: float = REL_TOL) -> bool:
+        """Every objective of the DAG within ``tolerance(., rel)`` of LAR's policy's
+        value at the start (by value alone, as :meth:`lar_correct`)."""
+        return all(abs(values[n] - self.reference[n]) <= tolerance(self.reference[n], rel)
+                   for n in self.solution.graph.objectives)
 
     def lar_correct(self, values: dict[str, float], rel: float = REL_TOL) -> bool:
         """LAR-correct by value alone: the leaf's start value ``values`` within
