@@ -248,3 +248,28 @@ def test_train_continuous_writes_a_run_judged_against_the_reference(tmp_path, ca
     assert set(result["reference"]["floors"]) == {"avoid"}
     assert main(["eval", str(out), "--episodes", "2"]) == 0
     assert json.loads(capsys.readouterr().out)["reference"] == result["reference"]
+
+
+def test_a_velocity_robot_starts_from_the_gaussian_defaults_and_flags_win():
+    """A Gaussian policy takes no entropy bonus and Adam's 3e-4 unless told otherwise;
+    heading actions and the grid keep the categorical defaults; a saved run keeps its
+    own config."""
+    from tpo.algo import TPO, TPOConfig
+    from tpo.algo.config import GAUSSIAN_DEFAULTS
+    from tpo.envs import ContinuousNav, load_map
+    from tpo.experiments.runspec import RunSpec
+
+    gaussian = TPOConfig(**GAUSSIAN_DEFAULTS)
+    assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
+    assert RunSpec.from_settings({"dynamics": "continuous"}).config == gaussian
+    assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \
+        == TPOConfig() == RunSpec.from_settings({}).config
+    mine = RunSpec.from_settings({"dynamics": "continuous", "ent_coef": 0.05}).config
+    assert (mine.ent_coef, mine.learning_rate) == (0.05, 3e-4)
+    saved = RunSpec.from_settings({"dynamics": "continuous", **TPOConfig().to_dict()},
+                                  saved=True)
+    assert saved.config == TPOConfig()
+    navmap = load_map("small")
+    assert TPO(ContinuousNav(navmap), "goal").config == gaussian
+    assert TPO(ContinuousNav(navmap, action="heading"), "goal").config == TPOConfig()
+    assert TPO(ContinuousNav(navmap), "goal", config=TPOConfig()).config == TPOConfig()

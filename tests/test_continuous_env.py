@@ -8,6 +8,7 @@ import pytest
 from tpo.envs import load_map, parse_map
 from tpo.envs.continuous import ContinuousNav, headings
 from tpo.errors import MapError
+from tpo.sensing import blocked, pad_walls
 
 ROOM = '''
 max_steps = 6
@@ -114,3 +115,18 @@ def test_bad_settings_are_rejected():
         ContinuousNav(m, speed=1.5)
     with pytest.raises(MapError, match="noise must be"):
         ContinuousNav(m, noise=-1.0)
+
+
+@pytest.mark.parametrize("xp", [np, jnp])
+def test_blocked_is_off_the_map_or_in_a_wall_by_hand(xp):
+    """One flat gather in the padded walls (tpo.sensing) gives what the definition
+    says, on a map whose edge is open: off the map, however far, is blocked."""
+    walls = np.array([[False, True, False],
+                      [False, False, False]])
+    points = np.array([[0.5, 0.5], [0.5, 1.99], [1.99, 2.99], [0.0, 1.0],  # free, wall, free, wall
+                       [-0.01, 0.5], [2.0, 0.5], [1.5, 3.0], [1.5, -1e-6],  # just off each edge
+                       [-1e9, 1e9], [1e9, 0.5], [0.5, -7.5]], np.float32)  # far off
+    padded = xp.asarray(pad_walls(walls))
+    assert padded.shape == (4, 5)
+    got = np.asarray(blocked(xp.asarray(points), padded, xp)).tolist()
+    assert got == [False, True, False, True] + [True] * 7

@@ -10,11 +10,12 @@ from flax import serialization
 from tpo.algo import TPOConfig
 from tpo.algo.config import CONSTRAINTS
 from tpo.cli.main import main
-from tpo.envs import grid_model, load_map
+from tpo.envs import ContinuousNav, grid_model, load_map
+from tpo.envs.continuous_model import continuous_model
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, FileLink
-from tpo.experiments.paper import FORMS, PANELS, Settings, direction
+from tpo.experiments.paper import CONTINUOUS_PANELS, FORMS, PANELS, Settings, direction
 from tpo.experiments.report import budget_text, results_csv, verdict_table
 from tpo.experiments.reproduce import check_settings, reproduce
 from tpo.experiments.sweep import run_sweep
@@ -37,6 +38,20 @@ def test_each_panel_trains_its_share_of_the_budget():
     assert budget_text(settings) == "1,500,000 in (b), 1,000,000 in (a) (c) (fig3), 500,000 in (d)"
     even = replace(settings, steps=900, shares={})
     assert budget_text(even) == "900" and {even.steps_of(p) for p, _ in even.panels()} == {900}
+    # The continuous robot's panels: every DAG and Figure 3 at slack 0 and 100, on their
+    # own budget, in the penalty form, named apart from the grid's.
+    assert settings.continuous_panels() == []  # tpo reproduce --continuous ACTION adds them
+    settings = replace(settings, continuous=CONTINUOUS_PANELS)
+    cont = settings.continuous_panels()
+    assert [(p.key, xs) for p, xs in cont] == [
+        (f"{n}-velocity", [0.0, 100.0]) for n in ("a", "b", "c", "d", "fig3")]
+    assert {settings.steps_of(p) for p, _ in cont} == {2_000_000}
+    assert [name for name, *_ in settings.jobs()][-5:] == [
+        f"penalty-{n}-velocity" for n in ("a", "b", "c", "d", "fig3")]
+    assert [p.key for p, _ in replace(settings, action="heading",
+                                      continuous=("fig3",)).continuous_panels()] == [
+        "fig3-heading"]
+    assert [p.key for p, _ in Settings.quick().continuous_panels()] == ["a-velocity"]
 
 
 def test_panels_sweep_the_edges_the_paper_names():
@@ -73,11 +88,26 @@ def test_verdict_table_and_csv_count_each_form_over_its_feasible_runs():
     assert rows[2:] == ["| (a) A>G | 3/4 / 3/4 / 2/4 | 1/4 / 1/4 / 2/4 |",
                         "| (b) G>A | 2/2 / 2/2 / 1/2 | 0/2 / 0/2 / 1/2 |",
                         "| **all feasible runs** | 5/6 / 5/6 / 3/6 | 1/6 / 1/6 / 3/6 |"]
-    csv_rows = results_csv(records).splitlines()
-    assert len(csv_rows) == 1 + 2 * 2 * 2 * 2  # forms x panels x slacks x seeds
+    continuous = {"c-velocity": _record("G>A", [[True, False], [True, True]], [True, True])}
+    csv_rows = results_csv(records, continuous).splitlines()
+    assert len(csv_rows) == 1 + 2 * 2 * 2 * 2 + 2 * 2  # forms x panels x slacks x seeds
     assert csv_rows[1] == ("penalty,a,A>G,0.0,0,0,goal,-1.000000,0.000000,-1.000000,"
                            "True,True,True,True")
-    assert csv_rows[-1].startswith("restriction,b,G>A,5.0,5,1,goal,-4.000000,")
+    assert csv_rows[-5].startswith("restriction,b,G>A,5.0,5,1,goal,-4.000000,")
+    assert csv_rows[-1].startswith("penalty,c-velocity,G>A,5.0,5,1,goal,-4.000000,")
+    assert verdict_table({"penalty": continuous}).splitlines()[2:] == [
+        "| (c-velocity) G>A | 3/4 / 3/4 / 2/4 |", "| **all feasible runs** | 3/4 / 3/4 / 2/4 |"]
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"continuous": ("e",)}, r"continuous must name panels from a, b, c, d, fig3, got \('e',\)"),
+    ({"continuous": "a"}, r"continuous must name panels from a, b, c, d, fig3, got 'a'"),
+    ({"action": "jump"}, r"action must be one of velocity, heading, got 'jump'"),
+    ({"continuous_steps": 10}, r"panel \(a-velocity\) trains 10 steps per run "
+                               r"\(--continuous-steps\): total_timesteps must be an integer")])
+def test_bad_continuous_settings_are_one_line(change, message):
+    with pytest.raises(TPOError, match=f"^{message}"):
+        check_settings(replace(Settings.quick(), **change))
 
 
 @pytest.mark.parametrize("forms", [(), ("penalty", "penalty"), ("bogus",), "penalty"])
@@ -106,12 +136,13 @@ def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path):
         mp.setattr("tpo.experiments.reproduce.write_outputs", lambda *a: None)
         result = reproduce(out, settings, seen.append, Fake())
     assert queued == [f"{f}-{p}" for f in FORMS for p in ("a", "b", "c", "d", "fig3")
-                      if (f, p) != ("restriction", "b")]
+                      if (f, p) != ("restriction", "b")] + ["penalty-a-velocity"]
     assert seen[0] == {name: float(name == "restriction-b") for name, *_ in settings.jobs()}
     assert seen[-1] == dict.fromkeys(seen[0], 1.0)
     assert list(result.records) == list(FORMS)
     assert result.records["restriction"]["b"] == {"mine": True}
     assert result.records["penalty"]["fig3"] == {"form": "penalty", "panel": "fig3"}
+    assert result.continuous == {"a-velocity": {"form": "penalty", "panel": "a"}}
     assert json.loads((out / "panels" / "penalty-fig3.json").read_text()) == {
         "form": "penalty", "panel": "fig3"}  # written by the driver as the unit finished
 
@@ -153,17 +184,21 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     assert main(["reproduce", "--quick", *both, "--out", str(out), "--quiet"]) == 0
     names = {p.name for p in out.iterdir()}
     pngs = {f"figure{n}-{form}.png" for n in (2, 3) for form in ("penalty", "restriction")}
+    pngs.add("figure2-continuous-velocity.png")  # one continuous panel: no Figure 3 of it
     assert pngs | {"results.csv", "results.json", "report.md", "settings.json",
-                   "panels"} <= names
+                   "panels"} <= names and "figure3-continuous-velocity.png" not in names
     for png in pngs:
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
     rows = [r.split(",") for r in (out / "results.csv").read_text().strip().splitlines()]
-    # 2 forms x (4 panels + figure 3) x 2 slacks x 2 seeds x 3 objectives
-    assert len(rows) == 1 + 2 * 5 * 2 * 2 * 3
+    # 2 forms x (4 panels + figure 3) x 2 slacks x 2 seeds x 3 objectives, and the
+    # continuous panel (a): 2 slacks x 2 seeds x 3 objectives
+    assert len(rows) == 1 + 2 * 5 * 2 * 2 * 3 + 2 * 2 * 3
     assert rows[0][:2] == ["form", "panel"]
     assert rows[0][-4:] == ["lar_feasible", "lar_correct", "strict", "same_values"]
+    assert {tuple(r[:3]) for r in rows if r[1] == "a-velocity"} == {
+        ("penalty", "a-velocity", "M>A>G")}
     # The forms ran on the same seeds, slacks and objectives, row for row.
-    penalty = [r[1:7] for r in rows[1:] if r[0] == "penalty"]
+    penalty = [r[1:7] for r in rows[1:] if r[0] == "penalty" and r[1] != "a-velocity"]
     assert penalty == [r[1:7] for r in rows[1:] if r[0] == "restriction"]
     report = (out / "report.md").read_text()
     # The verdicts side by side: one row per panel (and the total), one column per form.
@@ -194,6 +229,15 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     # A strict run is LAR-correct (strict adds a condition).
     correct, strict = np.array(record["lar_correct"]), np.array(record["strict"])
     assert correct.shape == strict.shape == (2, 2) and not (strict & ~correct).any()
+    # The continuous panel is judged against the env's finite reference, solved alone.
+    assert "## The continuous robot, velocity actions" in report
+    assert "| (a-velocity) M>A>G | " in report
+    cont = json.loads((out / "results.json").read_text())["continuous"]["a-velocity"]
+    ref = continuous_model(ContinuousNav(load_map("small"), action="velocity"), 0.99)
+    graph = ObjectiveGraph.parse("M>A>G", [100, 100], objectives=ref.model.objectives)
+    lar = solve_lar(ref.model, graph, relax=True).start_policy_values()
+    assert cont["lar"][1] == pytest.approx([lar[n] for n in cont["objectives"]])
+    assert np.shape(cont["exact"]) == (2, 2, 3) and np.shape(cont["lar_correct"]) == (2, 2)
     # A second run skips every finished panel; other settings are refused.
     before = {p.name: p.stat().st_mtime_ns for p in (out / "panels").iterdir()}
     assert main(["reproduce", "--quick", *both, "--out", str(out), "--quiet"]) == 0

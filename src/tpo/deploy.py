@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -72,8 +73,12 @@ class ContinuousObserver:
 
     def ranges(self, position: Any) -> np.ndarray:
         """A perfect range sensor's readings ``[K]`` at ``position`` on the map."""
-        return sensing.range_readings(self._position(position), self.walls, self.beams,
+        return sensing.range_readings(self._position(position), self._padded, self.beams,
                                       self.ray_t)
+
+    @cached_property
+    def _padded(self) -> np.ndarray:
+        return sensing.pad_walls(self.walls)
 
     def observe(self, position: Any, ranges: Any | None = None) -> np.ndarray:
         """The observation ``float32 [4 + K]`` at ``position`` (row, col in cells) with

@@ -20,20 +20,28 @@ def ray_distances(max_range: float) -> np.ndarray:
     return np.arange(RAY_STEP, max_range + 1e-6, RAY_STEP, dtype=np.float32)
 
 
-def blocked(points: Any, walls: Any, xp: Any = np) -> Any:
-    """Whether each point ``[..., 2]`` (row, col) lies off the grid or in a wall cell."""
-    h, w = walls.shape
-    cell = xp.floor(points).astype(xp.int32)
-    inside = (cell[..., 0] >= 0) & (cell[..., 0] < h) & (cell[..., 1] >= 0) & (cell[..., 1] < w)
-    clipped = xp.clip(cell, 0, xp.array([h - 1, w - 1]))
-    return ~inside | walls[clipped[..., 0], clipped[..., 1]]
+def pad_walls(walls: np.ndarray) -> np.ndarray:
+    """``walls [H, W]`` (bool) inside a border of wall cells, ``[H + 2, W + 2]``: what
+    :func:`blocked` reads."""
+    return np.pad(np.asarray(walls, bool), 1, constant_values=True)
 
 
-def range_readings(pos: Any, walls: Any, beams: Any, ray_t: Any, xp: Any = np) -> Any:
-    """A range sensor at ``pos [2]``: along each beam ``[K, 2]`` the distance to the first
-    blocked point sampled at ``ray_t [M]`` (less half a step), or ``ray_t[-1]``: ``[K]``."""
+def blocked(points: Any, padded: Any, xp: Any = np) -> Any:
+    """Whether each point ``[..., 2]`` (row, col) lies off the map or in a wall cell,
+    read from the map's :func:`pad_walls` ``padded`` in one flat gather (a point off
+    the map is clipped onto the border, a wall)."""
+    hp, wp = padded.shape
+    cell = xp.clip(xp.floor(points) + 1, 0, xp.array([hp - 1, wp - 1], xp.float32))
+    cell = cell.astype(xp.int32)
+    return padded.reshape(-1)[cell[..., 0] * wp + cell[..., 1]]
+
+
+def range_readings(pos: Any, padded: Any, beams: Any, ray_t: Any, xp: Any = np) -> Any:
+    """A range sensor at ``pos [2]`` on a map of :func:`pad_walls` ``padded``: along each
+    beam ``[K, 2]`` the distance to the first blocked point sampled at ``ray_t [M]``
+    (less half a step), or ``ray_t[-1]``: ``[K]``."""
     points = pos + beams[:, None, :] * ray_t[None, :, None]  # [K, M, 2]
-    hit = blocked(points, walls, xp)
+    hit = blocked(points, padded, xp)
     first = xp.argmax(hit, axis=1)
     return xp.where(hit.any(axis=1), ray_t[first] - RAY_STEP / 2, ray_t[-1])
 

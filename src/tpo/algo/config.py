@@ -20,6 +20,13 @@ REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of
 ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False}
 
 
+#: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
+#: one's: no entropy bonus (a Gaussian's entropy grows without bound with its standard
+#: deviation, so the bonus sized for a few categorical actions keeps the robot's moves
+#: short and noisy; CleanRL's and SB3's continuous default) and Adam's step 3e-4;
+#: measured in docs/notes/tpo-learning.md (sessions 9, 11 and 12)
+GAUSSIAN_DEFAULTS = {"ent_coef": 0.0, "ent_coef_end": 0.0, "learning_rate": 3e-4}
+
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 
 
@@ -30,8 +37,9 @@ class ConfigError(TPOError):
 @dataclass(frozen=True)
 class TPOConfig:
     """Hyperparameters of TPO (and of plain PPO, its one-objective case). Defaults
-    are tuned for the navigation grids on 2 CPU cores; every field is a
-    ``tpo train`` flag (``--num-envs 32``) and a ``config.toml`` key."""
+    are tuned for the navigation grids on 2 CPU cores (a Gaussian policy's differ:
+    :meth:`defaults`); every field is a ``tpo train`` flag (``--num-envs 32``) and a
+    ``config.toml`` key."""
 
     num_envs: int = 16
     """parallel environments; an update sees num_envs * num_steps transitions"""
@@ -181,6 +189,12 @@ class TPOConfig:
 
     def to_toml(self) -> str:
         return tomli_w.dumps(self.to_dict())
+
+    @classmethod
+    def defaults(cls, gaussian: bool = False, **values: Any) -> TPOConfig:
+        """The defaults for a categorical policy, or with ``gaussian`` for a Gaussian
+        one (:data:`GAUSSIAN_DEFAULTS`), with ``values`` on top."""
+        return cls.from_dict({**(GAUSSIAN_DEFAULTS if gaussian else {}), **values})
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TPOConfig:

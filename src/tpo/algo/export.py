@@ -63,8 +63,9 @@ def observer_arrays(model: TPO) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
                             "max_range along the beams (clockwise from up), then in-avoid "
                             "and in-monitor flags (tpo.sensing.observation)",
                  "n_beams": int(p.beams.shape[0]), "max_range": float(p.ray_t[-1])},
-                {f"observer/{n}": np.asarray(getattr(p, n)) for n in
-                 ("walls", "avoid", "monitor", "beams", "ray_t")})
+                {"observer/walls": np.asarray(env.navmap.walls, bool),
+                 **{f"observer/{n}": np.asarray(getattr(p, n)) for n in
+                    ("avoid", "monitor", "beams", "ray_t")}})
     return ({"kind": "env", "encoder": "the observation of the env the policy was trained "
              "on, flattened", "size": int(model.env.obs_shape[0])}, {})
 

@@ -44,7 +44,8 @@ class TPO:
         graph: an :class:`ObjectiveGraph` or a spec string such as ``"M>A>G"``
             (a single name, e.g. ``"goal"``, is plain PPO).
         slack: one slack or one per edge (ignored when ``graph`` is a graph).
-        config: hyperparameters.
+        config: hyperparameters (default :meth:`TPOConfig.defaults` for the env's
+            action space: a Gaussian policy's for a ``Box``).
         seed: PRNG seed of the parameters, the run and a Gymnasium env's resets.
         objectives: names of a Gymnasium env's reward components, in order.
     """
@@ -55,6 +56,8 @@ class TPO:
                  objectives: Sequence[str] | None = None) -> None:
         self.config = config or TPOConfig()
         self.env = env = make_env(env, objectives, self.config.num_envs)
+        if config is None and isinstance(env.action_space, gym.spaces.Box):
+            self.config = TPOConfig.defaults(gaussian=True)
         if self.host and env.num_envs != self.config.num_envs:  # a vector env's copies
             self.config = dataclasses.replace(self.config, num_envs=env.num_envs)
         self.eval_env = None if self.host else from_spec(env.to_spec(), evaluation=True)

@@ -22,7 +22,7 @@ from tpo.algo.config import CONSTRAINTS, TPOConfig
 from tpo.cli.options import UsageError, add_fields, read_fields
 from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
 from tpo.errors import TPOError
-from tpo.experiments.runspec import RunSpec
+from tpo.experiments.runspec import ACTION_KINDS, RunSpec
 from tpo.graph import ObjectiveGraph
 from tpo.locking import exclusive
 from tpo.tabular import LARSolution, solve_lar
@@ -359,7 +359,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from tpo.experiments.paper import FORMS, Settings
+    from tpo.experiments.paper import CONTINUOUS_PANELS, FORMS, Settings
     from tpo.experiments.reproduce import check_settings, reproduce
 
     if not args.out.strip():
@@ -385,6 +385,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         changes["forms"] = FORMS if args.constraint == "both" else (args.constraint,)
     if args.completion:
         changes["completion"] = True
+    if args.continuous is not None:
+        changes["action"] = args.continuous
+        if not args.quick:
+            changes["continuous"] = CONTINUOUS_PANELS
+    if args.continuous_steps is not None:
+        changes["continuous_steps"] = args.continuous_steps
     settings = replace(settings, **changes)
     check_settings(settings)  # before the progress bar and before anything is made
     engine = backend_of(args)
@@ -425,7 +431,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     spec = SweepSpec(map=args.map, dag=args.dag, dynamics=args.dynamics,
                      action=args.action or SweepSpec.action, xs=tuple(parse_slack(args.slack)),
                      edge_slack=tuple(v.strip() for v in args.edge_slack.split(","))
-                     if args.edge_slack else (), config=TPOConfig.from_dict(config), **budget)
+                     if args.edge_slack else (), config=TPOConfig.defaults(
+                         args.dynamics == "continuous" and args.action == "velocity", **config),
+                     **budget)
     spec.check(learned=not args.exact_only)  # before anything is made
     engine = None if args.exact_only else backend_of(args)
     with exclusive(args.out, create=True) as out:
@@ -555,7 +563,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reproduce", help="the paper's Figures 2 and 3, with plots and report")
     p.add_argument("--out", required=True, help="output directory (resumed if it exists)")
     p.add_argument("--quick", action="store_true",
-                   help="small budget on the small map (CI): 2 slacks, 2 seeds")
+                   help="small budget on the small map (CI): 2 slacks, 2 seeds, one "
+                        "continuous panel")
     p.add_argument("--map", help="bundled map or TOML file (default home)")
     p.add_argument("--slacks", help="slack values of the x-axis (default 0,1,2,5,10,20,50,100)")
     p.add_argument("--seeds", type=int, help="number of seeds (default 5; at most 1000)")
@@ -568,6 +577,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "learner's); both: every form side by side on the same seeds")
     p.add_argument("--completion", action="store_true",
                    help="completion phases after the leaf (docs/design.md §5)")
+    p.add_argument("--continuous", choices=ACTION_KINDS,
+                   help="add the continuous robot's panels (the four DAGs and Figure 3 at "
+                        "slack 0 and 100) with velocity or heading actions (--quick runs "
+                        "one, with velocity actions unless this names heading)")
+    p.add_argument("--continuous-steps", type=int,
+                   help="env steps per continuous run (default 2,000,000)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_reproduce)
 

@@ -36,7 +36,7 @@ from flax import struct
 from tpo.envs.base import JaxEnv, nav_reward
 from tpo.envs.maps import NavMap, check_max_steps
 from tpo.errors import MapError
-from tpo.sensing import blocked, observation, range_readings, ray_distances
+from tpo.sensing import blocked, observation, pad_walls, range_readings, ray_distances
 
 ACTION_KINDS = ("velocity", "heading")
 
@@ -49,7 +49,7 @@ def headings(n: int) -> np.ndarray:
 
 @struct.dataclass
 class ContinuousParams:
-    walls: jax.Array  # bool [H, W]
+    walls: jax.Array  # bool [H + 2, W + 2]: the walls in a border of walls (pad_walls)
     avoid: jax.Array  # bool [H, W]
     monitor: jax.Array  # bool [H, W]
     starts: jax.Array  # float32 [N, 2] the corner of every start cell
@@ -89,7 +89,7 @@ class ContinuousNav(JaxEnv):
         self.action_space = (gym.spaces.Discrete(8) if action == "heading"
                              else gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self.params = ContinuousParams(
-            walls=jnp.asarray(navmap.walls), avoid=jnp.asarray(navmap.avoid_mask),
+            walls=jnp.asarray(pad_walls(navmap.walls)), avoid=jnp.asarray(navmap.avoid_mask),
             monitor=jnp.asarray(navmap.monitor_mask),
             starts=jnp.asarray(navmap.start_cells(random_start), jnp.float32),
             jitter=jnp.float32(random_start),

@@ -1,11 +1,12 @@
 """The paper's experiments (§V) as data: Figure 2's four panels (a DAG whose
 edges take the x-axis slack), the values its figure shows, Figure 3's two
-slack settings, the forms of the constraint every panel runs in, and what
-``tpo reproduce`` runs (:class:`Settings`, its jobs and their names)."""
+slack settings, the forms of the constraint every panel runs in, the
+continuous robot's counterparts of the panels, and what ``tpo reproduce`` runs
+(:class:`Settings`, its jobs and their names)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 
 @dataclass(frozen=True)
@@ -17,6 +18,13 @@ class Panel:
     dag: str
     swept: tuple[int, ...]
     xlabel: str
+    action: str = ""  # "" on the grid; else the continuous robot's action kind
+
+    @property
+    def key(self) -> str:
+        """The panel's name among all panels: ``a`` on the grid, ``a-velocity`` for the
+        continuous robot with velocity actions."""
+        return f"{self.name}-{self.action}" if self.action else self.name
 
     def slack(self, x: float, n_edges: int) -> list[float]:
         return [float(x) if e in self.swept else 0.0 for e in range(n_edges)]
@@ -46,6 +54,12 @@ FIGURE3_SLACKS = (0.0, 100.0)
 # of it (on a third, 150/160 runs and Figure 3 8/10 were LAR-correct); the fan (d) on a
 # third gives the verdicts of two thirds, seed for seed (30/30, 30/30, 5/30; session 11).
 SHARES = {"a": 2 / 3, "b": 1.0, "c": 2 / 3, "d": 1 / 3, "fig3": 2 / 3}
+# The continuous robot's panels (tpo reproduce --continuous ACTION): each of Figure 2's
+# DAGs, and Figure 3, at slack 0 and 100 only, in the penalty form (the paper's, the
+# only one for a Gaussian policy); their budget is Settings.continuous_steps.
+CONTINUOUS_PANELS = ("a", "b", "c", "d", "fig3")
+CONTINUOUS_FORM = "penalty"
+CONTINUOUS_SLACKS = (0.0, 100.0)
 
 
 @dataclass(frozen=True)
@@ -60,26 +74,42 @@ class Settings:
     forms: tuple[str, ...] = FORMS[:1]  # TPOConfig.constraint: every panel runs in each form
     completion: bool = False  # TPOConfig.completion
     shares: dict[str, float] = field(default_factory=lambda: dict(SHARES))
+    action: str = "velocity"  # the continuous robot's action kind (velocity or heading)
+    continuous: tuple[str, ...] = ()  # its panels, of CONTINUOUS_PANELS (() for none)
+    continuous_steps: int = 2_000_000  # env steps of each continuous run
 
     @classmethod
     def quick(cls) -> Settings:
-        """A small budget that runs end to end in CI (about two minutes a form)."""
-        return cls(map="small", slacks=(0, 100), seeds=(0, 1), steps=300_000)
+        """A small budget that runs end to end in CI (about two minutes a form, plus one
+        continuous panel)."""
+        return cls(map="small", slacks=(0, 100), seeds=(0, 1), steps=300_000,
+                   continuous=("a",), continuous_steps=300_000)
 
     def panels(self) -> list[tuple[Panel, list[float]]]:
-        """Every panel with its x-axis slack values, Figure 3 last."""
+        """Every grid panel with its x-axis slack values, Figure 3 last."""
         return [*[(p, [float(x) for x in self.slacks]) for p in PANELS],
                 (FIGURE3, list(FIGURE3_SLACKS))]
 
+    def continuous_panels(self) -> list[tuple[Panel, list[float]]]:
+        """The continuous robot's panels (:attr:`continuous`, in :meth:`panels`' order)
+        with their slack values."""
+        return [(replace(p, action=self.action), list(CONTINUOUS_SLACKS))
+                for p, _ in self.panels() if p.name in self.continuous]
+
     def steps_of(self, panel: Panel) -> int:
         """The env steps of each run of ``panel``."""
+        if panel.action:
+            return self.continuous_steps
         return max(1, round(self.steps * self.shares.get(panel.name, 1.0)))
 
     def jobs(self) -> list[tuple[str, str, Panel, list[float]]]:
-        """Every form's panels (:meth:`panels`), the forms in order, each with its
-        name ``FORM-PANEL``: its progress key and its file name in ``OUT/panels``."""
-        return [(f"{form}-{p.name}", form, p, xs) for form in self.forms
-                for p, xs in self.panels()]
+        """Every form's grid panels (:meth:`panels`), the forms in order, then the
+        continuous panels in their form, each with its name ``FORM-KEY``: its progress
+        key and its file name in ``OUT/panels``."""
+        return [*[(f"{form}-{p.key}", form, p, xs) for form in self.forms
+                  for p, xs in self.panels()],
+                *[(f"{CONTINUOUS_FORM}-{p.key}", CONTINUOUS_FORM, p, xs)
+                  for p, xs in self.continuous_panels()]]
 
 
 def direction(start: float, end: float, scale: float) -> str:

@@ -1,7 +1,7 @@
-"""The reproduction's outputs from the panel records of every form: figures,
-``results.csv`` (through :mod:`csv`), ``results.json`` and the markdown report,
-whose table of the forms' verdicts and table of each line's direction beside
-the paper's are also the command's summary."""
+"""The reproduction's outputs from the panel records of every form and of the
+continuous robot: figures, ``results.csv`` (through :mod:`csv`), ``results.json``
+and the markdown report, whose tables of the verdicts and of each line's
+direction beside the paper's are also the command's summary."""
 
 from __future__ import annotations
 
@@ -16,7 +16,15 @@ import numpy as np
 
 from tpo.atomic import write_atomic
 from tpo.envs import load_map
-from tpo.experiments.paper import FIGURE3, PANELS, PAPER, Settings, direction
+from tpo.experiments.paper import (
+    CONTINUOUS_FORM,
+    CONTINUOUS_SLACKS,
+    FIGURE3,
+    PANELS,
+    PAPER,
+    Settings,
+    direction,
+)
 from tpo.tabular import VERDICTS
 
 CSV_FIELDS = ("form", "panel", "dag", "x", "slack", "seed", "objective", "exact", "mc", "lar",
@@ -26,41 +34,74 @@ CSV_FIELDS = ("form", "panel", "dag", "x", "slack", "seed", "objective", "exact"
 Records = dict[str, dict[str, dict[str, Any]]]  # {form: {panel name: panel record}}
 
 
-def write_outputs(out: Path, settings: Settings, records: Records) -> None:
-    """Figures (two per form), CSV, JSON and the markdown report from the panel
-    records of every form."""
-    from tpo.envs.render import plot_paths, save_figure
+def write_outputs(out: Path, settings: Settings, records: Records,
+                  continuous: dict[str, dict[str, Any]]) -> None:
+    """Figures (two per form, two of the continuous robot), CSV, JSON and the markdown
+    report from the grid panels' records of every form and the continuous panels'
+    (by :attr:`Panel.key`)."""
+    from tpo.envs.render import save_figure
     from tpo.experiments.figures import figure2
 
-    write_atomic(out / "results.csv", results_csv(records))
+    write_atomic(out / "results.csv", results_csv(records, continuous))
     summary = {"settings": asdict(settings), "forms": {
-        form: {n: {k: v for k, v in r.items() if k != "paths"} for n, r in panels.items()}
-        for form, panels in records.items()}}
+        form: {n: _without_paths(r) for n, r in panels.items()}
+        for form, panels in records.items()},
+        "continuous": {k: _without_paths(r) for k, r in continuous.items()}}
     write_atomic(out / "results.json", json.dumps(summary))
     navmap = load_map(settings.map)
     for form, panels in records.items():
         save_figure(figure2([panels[p.name] for p in PANELS], PANELS),
                     out / f"figure2-{form}.png")
-        fig3 = panels[FIGURE3.name]
-        paths = [np.array(fig3["paths"][i][0]) for i in range(2)]
-        labels = [f"slack {'/'.join(f'{v:g}' for v in fig3['slacks'][i])}: "
-                  + (f"{len(p) - 1} steps to the goal" if tuple(p[-1]) == navmap.goal
-                     else "never reaches the goal") for i, p in enumerate(paths)]
-        save_figure(plot_paths(navmap, paths, labels, colors=("tab:blue", "tab:red"),
-                               title=f"{navmap.name}: learned M>A>G paths, {form} form "
-                                     f"(seed {fig3['seeds'][0]})"),
+        save_figure(figure3(navmap, panels[FIGURE3.name], f"{form} form"),
                     out / f"figure3-{form}.png")
-    write_atomic(out / "report.md", report(settings, records))
+    by_name = {r["panel"]["name"]: r for r in continuous.values()}
+    name = f"continuous-{settings.action}"
+    shown = [p for p in PANELS if p.name in by_name]
+    if shown:
+        save_figure(figure2([by_name[p.name] for p in shown], shown), out / f"figure2-{name}.png")
+    if FIGURE3.name in by_name:
+        save_figure(figure3(navmap, by_name[FIGURE3.name],
+                            f"continuous robot, {settings.action} actions"),
+                    out / f"figure3-{name}.png")
+    write_atomic(out / "report.md", report(settings, records, continuous))
 
 
-def results_csv(records: Records) -> str:
-    """One row per form, panel, slack, seed and objective."""
+def _without_paths(record: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in record.items() if k != "paths"}
+
+
+def figure3(navmap: Any, record: dict[str, Any], what: str) -> Any:
+    """The learned paths of Figure 3's record (its first seed) at its two slacks: cells
+    on the grid, noise-free positions of the continuous robot (drawn on the cells'
+    centres, as cells are)."""
+    from tpo.envs.render import plot_paths
+
+    continuous = bool(record["panel"].get("action"))
+    paths = [np.array(record["paths"][i][0], float) - (0.5 if continuous else 0.0)
+             for i in range(len(record["x"]))]
+    labels = []
+    for i, path in enumerate(paths):
+        reached = tuple(np.floor(path[-1] + 0.5).astype(int)) == navmap.goal if continuous \
+            else tuple(path[-1].astype(int)) == navmap.goal
+        labels.append(f"slack {'/'.join(f'{v:g}' for v in record['slacks'][i])}: "
+                      + (f"{len(path) - 1} steps to the goal" if reached
+                         else "never reaches the goal"))
+    return plot_paths(navmap, paths, labels, colors=("tab:blue", "tab:red"),
+                      title=f"{navmap.name}: learned M>A>G paths, {what} "
+                            f"(seed {record['seeds'][0]})")
+
+
+def results_csv(records: Records, continuous: dict[str, dict[str, Any]]) -> str:
+    """One row per form, panel, slack, seed and objective (the continuous panels in
+    their form, named by :attr:`Panel.key`)."""
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     writer.writerow(CSV_FIELDS)
     for form, panels in records.items():
         for name, rec in panels.items():
             _panel_rows(writer, form, name, rec)
+    for key, rec in continuous.items():
+        _panel_rows(writer, CONTINUOUS_FORM, key, rec)
     return text.getvalue()
 
 
@@ -129,7 +170,7 @@ def verdict_table(records: Records) -> str:
 
 
 def budget_text(settings: Settings) -> str:
-    """Each panel's steps per run, e.g. ``1,500,000 in (b), 1,000,000 in (a) (c)``."""
+    """Each grid panel's steps per run, e.g. ``1,500,000 in (b), 1,000,000 in (a) (c)``."""
     by_steps: dict[int, list[str]] = {}
     for panel, _ in settings.panels():
         by_steps.setdefault(settings.steps_of(panel), []).append(f"({panel.name})")
@@ -139,9 +180,10 @@ def budget_text(settings: Settings) -> str:
                      for steps, names in sorted(by_steps.items(), reverse=True))
 
 
-def report(settings: Settings, records: Records) -> str:
-    """Markdown: the forms' verdicts side by side, a table per form and panel, and the
-    direction of every line beside the paper's."""
+def report(settings: Settings, records: Records, continuous: dict[str, dict[str, Any]]
+           ) -> str:
+    """Markdown: the forms' verdicts side by side, a table per form and panel, the
+    direction of every line beside the paper's, and the continuous panels'."""
     lines = [f"# Reproduction of the paper's Figure 2 on `{settings.map}`", "",
              f"{len(settings.seeds)} seeds; env steps per run: {budget_text(settings)}; "
              + (f"in the {', '.join(records)} forms of the constraint on the same seeds. "
@@ -158,6 +200,19 @@ def report(settings: Settings, records: Records) -> str:
             lines += [f"## ({panel.name}) `{panel.dag}`, slack on {panel.xlabel}: {form} form",
                       "", *slack_table(panels[panel.name]), ""]
     lines += ["## Direction of each line", "", directions(records), ""]
+    if continuous:
+        lines += [f"## The continuous robot, {settings.action} actions", "",
+                  f"The same DAGs at slack {' and '.join(f'{x:g}' for x in CONTINUOUS_SLACKS)} "
+                  f"on the continuous env (`ContinuousNav`), {settings.continuous_steps:,} env "
+                  f"steps per run, in the {CONTINUOUS_FORM} form. Values are each learned "
+                  "greedy policy's noise-free discounted return from the start (mean ± std "
+                  "over seeds) beside the values of LAR's policy on the env's finite "
+                  "reference (`tpo solve --dynamics continuous`); LAR-correct and same "
+                  "values within 5 %, strict: also the path's category (goal reached, "
+                  "avoid region entered, monitor region at the end) is the reference "
+                  "path's.", "", verdict_table({CONTINUOUS_FORM: continuous}), ""]
+        for key, rec in continuous.items():
+            lines += [f"### ({key}) `{rec['panel']['dag']}`", "", *slack_table(rec), ""]
     return "\n".join(lines)
 
 

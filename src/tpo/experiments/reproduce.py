@@ -7,11 +7,15 @@ penalty and the restriction, on the same seeds). A panel of one form is one
 one compiled program: a unit of :mod:`tpo.experiments.engine`, run by its local
 or Ray backend. Each finished panel is saved to ``OUT/panels/FORM-NAME.json`` at
 once, so a killed run restarts where it was (a panel in progress resumes from its
-checkpoint). Output (:mod:`tpo.experiments.report`)::
+checkpoint). The continuous robot's panels (``Settings.continuous``: the same DAGs
+at slack 0 and 100, judged at value level against the env's finite reference) run
+in the penalty form. Output (:mod:`tpo.experiments.report`)::
 
     OUT/figure2-FORM.png  four panels like the paper's: V_avoid red, V_monitor blue,
                           V_goal green against slack; seed spread shaded; LAR dashed
     OUT/figure3-FORM.png  the learned M>A>G paths at slack (0, 0) and (100, 0)
+    OUT/figure2-continuous-ACTION.png, figure3-continuous-ACTION.png  the same of the
+                          continuous robot (LAR: the reference's)
     OUT/results.csv       one row per form, panel, slack, seed and objective
     OUT/results.json      the same, nested, with the settings
     OUT/report.md         the verdicts of the forms side by side, a table per panel,
@@ -31,46 +35,54 @@ from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Unit, run_units
-from tpo.experiments.paper import Panel, Settings
+from tpo.experiments.paper import CONTINUOUS_FORM, Panel, Settings
 from tpo.experiments.report import Records, directions, verdict_table, write_outputs
 
 if TYPE_CHECKING:
     from tpo.algo import TPOConfig
-    from tpo.envs.grid import GridNav
+    from tpo.envs import ContinuousNav, GridNav
 
 
 @dataclass(frozen=True)
 class Reproduction:
-    """What :func:`reproduce` made: the panel records of every form (forms and panels
-    in order) and where."""
+    """What :func:`reproduce` made: the grid panels' records of every form (forms and
+    panels in order), the continuous panels' (by :attr:`Panel.key`), and where."""
 
     out: Path
     records: Records
+    continuous: dict[str, dict[str, Any]]
 
     def summary(self) -> str:
         """The verdicts of the forms side by side, the direction of each line beside
-        the paper's, and the time it took."""
+        the paper's, the continuous panels' verdicts, and the time it took."""
         seconds = sum(r["seconds"] for form in self.records.values() for r in form.values())
-        return (f"{verdict_table(self.records)}\n\n{directions(self.records)}\n\n"
+        seconds += sum(r["seconds"] for r in self.continuous.values())
+        cont = (f"\n\n{verdict_table({CONTINUOUS_FORM: self.continuous})}"
+                if self.continuous else "")
+        return (f"{verdict_table(self.records)}\n\n{directions(self.records)}{cont}\n\n"
                 f"figures, tables and report in {self.out} ({seconds:.0f} s of panel time)")
 
 
 def panel_problem(form: str, panel: Panel, xs: list[float], settings: Settings
-                  ) -> tuple[GridNav, TPOConfig, list[list[float]]]:
+                  ) -> tuple[GridNav | ContinuousNav, TPOConfig, list[list[float]]]:
     """The training env, the config and every run's slacks of one panel in ``form``."""
-    from tpo.envs.grid import GridNav
+    from tpo.envs import ContinuousNav, GridNav
     from tpo.graph import ObjectiveGraph
 
-    env = GridNav(load_map(settings.map), random_start=True)
+    navmap = load_map(settings.map)
+    env = (ContinuousNav(navmap, action=panel.action, random_start=True) if panel.action
+           else GridNav(navmap, random_start=True))
     n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0, objectives=OBJECTIVES).edges)
-    return env, learner(form, settings), [panel.slack(x, n_edges) for x in xs]
+    return env, learner(form, settings, panel.action), [panel.slack(x, n_edges) for x in xs]
 
 
-def learner(form: str, settings: Settings) -> TPOConfig:
-    """The config every run of ``form`` trains with."""
+def learner(form: str, settings: Settings, action: str = "") -> TPOConfig:
+    """The config every run of ``form`` trains with (``action``: the continuous
+    robot's action kind, whose policy's defaults it takes; "" on the grid)."""
     from tpo.algo import TPOConfig
 
-    return TPOConfig(constraint=form, completion=settings.completion)
+    return TPOConfig.defaults(gaussian=action == "velocity", constraint=form,
+                              completion=settings.completion)
 
 
 def check_settings(settings: Settings) -> None:
@@ -78,6 +90,7 @@ def check_settings(settings: Settings) -> None:
     config), before anything is written."""
     from tpo.algo import Trainer
     from tpo.algo.config import CONSTRAINTS, ConfigError
+    from tpo.envs.continuous import ACTION_KINDS
     from tpo.graph import ObjectiveGraph
 
     forms = settings.forms
@@ -85,6 +98,13 @@ def check_settings(settings: Settings) -> None:
             or not set(forms) <= set(CONSTRAINTS):
         raise TPOError(f"forms must be distinct names from {', '.join(CONSTRAINTS)}, "
                        f"got {forms!r}")
+    names = [p.name for p, _ in settings.panels()]
+    if not isinstance(settings.continuous, tuple) or not set(settings.continuous) <= set(names):
+        raise TPOError(f"continuous must name panels from {', '.join(names)}, "
+                       f"got {settings.continuous!r}")
+    if settings.action not in ACTION_KINDS:
+        raise TPOError(f"action must be one of {', '.join(ACTION_KINDS)}, "
+                       f"got {settings.action!r}")
     for _, form, panel, xs in settings.jobs():
         env, config, slacks = panel_problem(form, panel, xs, settings)
         graph = ObjectiveGraph.parse(panel.dag, slacks[0], objectives=env.objectives)
@@ -92,8 +112,10 @@ def check_settings(settings: Settings) -> None:
         try:
             Trainer(env, graph, config, steps)
         except ConfigError as err:
-            raise ConfigError(f"panel ({panel.name}) trains {steps:,} steps per run (its share "
-                              f"of {settings.steps:,}): {err}") from None
+            budget = ("--continuous-steps" if panel.action
+                      else f"its share of {settings.steps:,}")
+            raise ConfigError(f"panel ({panel.key}) trains {steps:,} steps per run "
+                              f"({budget}): {err}") from None
 
 
 def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, link: Link
@@ -107,8 +129,7 @@ def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, link
     result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps_of(panel),
                        progress=lambda done, total: link.progress(done / total),
                        checkpoint=link)
-    grid = env.tabular(config.gamma)
-    paths = [[grid.rollout(pi).tolist() for pi in row] for row in result.policies]
+    paths = [[path.tolist() for path in row] for row in result.paths]
     return {"form": form, "panel": asdict(panel), "x": xs, **result.record(), "paths": paths,
             "seconds": time.monotonic() - t0, "runs": len(slacks) * len(settings.seeds)}
 
@@ -134,6 +155,9 @@ def reproduce(out: str | Path, settings: Settings | None = None,
     settings_file = out / "settings.json"
     mine = asdict(settings)
     mine["learners"] = {form: learner(form, settings).to_dict() for form in settings.forms}
+    if settings.continuous:
+        mine["learners"][f"continuous-{settings.action}"] = learner(
+            CONTINUOUS_FORM, settings, settings.action).to_dict()
     mine = json.loads(json.dumps(mine))
     if settings_file.exists():
         theirs = json.loads(settings_file.read_text())
@@ -147,7 +171,8 @@ def reproduce(out: str | Path, settings: Settings | None = None,
              for name, form, panel, xs in settings.jobs()]
     found = run_units(units, backend or LocalBackend(), out / "panels",
                       None if progress is None else lambda t: progress(dict(t.fractions)))
-    records = {form: {p.name: found[name] for name, f, p, _ in settings.jobs() if f == form}
-               for form in settings.forms}
-    write_outputs(out, settings, records)
-    return Reproduction(out, records)
+    records = {form: {p.name: found[name] for name, f, p, _ in settings.jobs()
+                      if f == form and not p.action} for form in settings.forms}
+    continuous = {p.key: found[name] for name, _, p, _ in settings.jobs() if p.action}
+    write_outputs(out, settings, records, continuous)
+    return Reproduction(out, records, continuous)

@@ -28,7 +28,8 @@ class RunError(TPOError):
 @dataclass(frozen=True)
 class RunSpec:
     """What one ``tpo train`` run trains: the problem and the budget (every field a
-    ``tpo train`` flag and a ``config.toml`` key), and the hyperparameters."""
+    ``tpo train`` flag and a ``config.toml`` key), and the hyperparameters (a velocity
+    robot's Gaussian policy starts from its own defaults: :meth:`TPOConfig.defaults`)."""
 
     map: str = "home"
     """bundled map name or TOML file"""
@@ -106,7 +107,9 @@ class RunSpec:
                    observation=str(run["observation"]), action=run["action"],
                    noise=float(run["noise"]), env=str(run["env"]),
                    objectives=tuple(objectives),
-                   config=(TPOConfig.from_saved if saved else TPOConfig.from_dict)(settings))
+                   config=TPOConfig.from_saved(settings) if saved else TPOConfig.defaults(
+                       run["dynamics"] == "continuous" and run["action"] == "velocity",
+                       **settings))
 
     @classmethod
     def from_toml(cls, path: str | Path, saved: bool = False) -> RunSpec:

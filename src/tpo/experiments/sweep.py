@@ -50,6 +50,9 @@ class SweepResult:
         feasible: ``[S]`` whether LAR found the problem feasible (else relaxed).
         policies: ``[S, N, n_states]`` the learned greedy actions on the grid model
             (None in continuous space).
+        paths: ``[S][N]`` each greedy policy's path from the start: the cells
+            ``[T, 2]`` on a grid, the noise-free positions ``[T, 2]`` in continuous
+            space (cell ``(r, c)`` covers ``[r, r + 1) x [c, c + 1)``).
         lar_correct, strict, same_values: ``[S, N]`` the verdicts of
             :class:`tpo.tabular.Judge` (docs/design.md §6); in continuous space at
             value level within 5 % (``CONTINUOUS_TOL``), strict meaning also the
@@ -66,6 +69,7 @@ class SweepResult:
     lar: np.ndarray
     feasible: np.ndarray
     policies: np.ndarray | None
+    paths: list[list[np.ndarray]]
     lar_correct: np.ndarray
     strict: np.ndarray
     same_values: np.ndarray
@@ -178,8 +182,10 @@ def evaluate_sweep(trainer: Trainer, actings: Acting, env: GridNav,
     lar = np.array([[s.start_policy_values()[n] for n in env.objectives] for s in solutions])
     flags = {name: np.array([[getattr(v, name) for v in row] for row in verdicts])
              for name in VERDICTS}
+    grid = eval_env.tabular(gamma)
+    paths = [[grid.rollout(pi) for pi in row] for row in policies]
     return SweepResult(graphs[0], tuple(env.objectives), slacks, seeds, exact, mc, lar,
-                       np.array([s.feasible for s in solutions]), policies, **flags)
+                       np.array([s.feasible for s in solutions]), policies, paths, **flags)
 
 
 def evaluate_reference_sweep(trainer: Trainer, actings: Acting, env: ContinuousNav,
@@ -210,6 +216,8 @@ def evaluate_reference_sweep(trainer: Trainer, actings: Acting, env: ContinuousN
             verdicts[s, n] = (correct, correct and matches,
                               judge.same_values(values, CONTINUOUS_TOL))
     lar = np.array([[s.start_policy_values()[n] for n in objectives] for s in solutions])
+    paths = [[positions[s, n][alive[s, n]] for n in range(len(seeds))]
+             for s in range(len(graphs))]
     return SweepResult(graphs[0], objectives, slacks, seeds, returns.astype(np.float64), mc,
-                       lar, np.array([s.feasible for s in solutions]), None,
+                       lar, np.array([s.feasible for s in solutions]), None, paths,
                        **{k: verdicts[..., i] for i, k in enumerate(VERDICTS)})
