@@ -81,8 +81,7 @@ def figure3(navmap: Any, record: dict[str, Any], what: str) -> Any:
              for i in range(len(record["x"]))]
     labels = []
     for i, path in enumerate(paths):
-        reached = tuple(np.floor(path[-1] + 0.5).astype(int)) == navmap.goal if continuous \
-            else tuple(path[-1].astype(int)) == navmap.goal
+        reached = tuple(np.floor(path[-1] + 0.5).astype(int)) == navmap.goal
         labels.append(f"slack {'/'.join(f'{v:g}' for v in record['slacks'][i])}: "
                       + (f"{len(path) - 1} steps to the goal" if reached
                          else "never reaches the goal"))

@@ -35,7 +35,7 @@ from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Unit, run_units
-from tpo.experiments.paper import CONTINUOUS_FORM, Panel, Settings
+from tpo.experiments.paper import CONTINUOUS_FORM, CONTINUOUS_PANELS, Panel, Settings
 from tpo.experiments.report import Records, directions, verdict_table, write_outputs
 
 if TYPE_CHECKING:
@@ -80,9 +80,10 @@ def learner(form: str, settings: Settings, action: str = "") -> TPOConfig:
     """The config every run of ``form`` trains with (``action``: the continuous
     robot's action kind, whose policy's defaults it takes; "" on the grid)."""
     from tpo.algo import TPOConfig
+    from tpo.experiments.runspec import gaussian
 
-    return TPOConfig.defaults(gaussian=action == "velocity", constraint=form,
-                              completion=settings.completion)
+    return TPOConfig.defaults(gaussian("continuous" if action else "grid", action),
+                              constraint=form, completion=settings.completion)
 
 
 def check_settings(settings: Settings) -> None:
@@ -98,9 +99,9 @@ def check_settings(settings: Settings) -> None:
             or not set(forms) <= set(CONSTRAINTS):
         raise TPOError(f"forms must be distinct names from {', '.join(CONSTRAINTS)}, "
                        f"got {forms!r}")
-    names = [p.name for p, _ in settings.panels()]
-    if not isinstance(settings.continuous, tuple) or not set(settings.continuous) <= set(names):
-        raise TPOError(f"continuous must name panels from {', '.join(names)}, "
+    if not isinstance(settings.continuous, tuple) \
+            or not set(settings.continuous) <= set(CONTINUOUS_PANELS):
+        raise TPOError(f"continuous must name panels from {', '.join(CONTINUOUS_PANELS)}, "
                        f"got {settings.continuous!r}")
     if settings.action not in ACTION_KINDS:
         raise TPOError(f"action must be one of {', '.join(ACTION_KINDS)}, "

@@ -17,6 +17,12 @@ from tpo.errors import TPOError
 DYNAMICS = ("grid", "continuous")
 ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: no JAX here)
 
+
+def gaussian(dynamics: str, action: str) -> bool:
+    """Whether the robot's policy is a Gaussian (velocity actions in continuous space),
+    which starts from its own defaults (:meth:`TPOConfig.defaults`)."""
+    return dynamics == "continuous" and action == "velocity"
+
 if TYPE_CHECKING:
     from tpo.algo import TPO
 
@@ -108,8 +114,7 @@ class RunSpec:
                    noise=float(run["noise"]), env=str(run["env"]),
                    objectives=tuple(objectives),
                    config=TPOConfig.from_saved(settings) if saved else TPOConfig.defaults(
-                       run["dynamics"] == "continuous" and run["action"] == "velocity",
-                       **settings))
+                       gaussian(run["dynamics"], run["action"]), **settings))
 
     @classmethod
     def from_toml(cls, path: str | Path, saved: bool = False) -> RunSpec:
