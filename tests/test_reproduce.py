@@ -1,7 +1,7 @@
 """`tpo reproduce`: the sweep runner, its resume, and the quick end-to-end run."""
 
 import json
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
@@ -15,8 +15,8 @@ from tpo.envs.continuous_model import continuous_model
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, FileLink
-from tpo.experiments.paper import CONTINUOUS_PANELS, FORMS, PANELS, Settings, direction
-from tpo.experiments.report import budget_text, results_csv, verdict_table
+from tpo.experiments.paper import CONTINUOUS_PANELS, FIGURE3, FORMS, PANELS, Settings, direction
+from tpo.experiments.report import budget_text, merge_records, pick_runs, results_csv, verdict_table
 from tpo.experiments.reproduce import check_settings, reproduce
 from tpo.experiments.sweep import run_sweep
 from tpo.graph import ObjectiveGraph
@@ -33,9 +33,9 @@ def test_the_reproduction_runs_the_default_learner_and_can_run_every_form():
 def test_each_panel_trains_its_share_of_the_budget():
     settings = Settings()
     steps = {p.name: settings.steps_of(p) for p, _ in settings.panels()}
-    assert steps == {"a": 1_000_000, "b": 1_500_000, "c": 1_000_000, "d": 500_000,
-                     "fig3": 1_000_000}
-    assert budget_text(settings) == "1,500,000 in (b), 1,000,000 in (a) (c) (fig3), 500,000 in (d)"
+    assert steps == {"a": 750_000, "b": 1_500_000, "c": 750_000, "d": 500_000,
+                     "fig3": 750_000}
+    assert budget_text(settings) == "1,500,000 in (b), 750,000 in (a) (c) (fig3), 500,000 in (d)"
     even = replace(settings, steps=900, shares={})
     assert budget_text(even) == "900" and {even.steps_of(p) for p, _ in even.panels()} == {900}
     # The continuous robot's panels: every DAG and Figure 3 at slack 0 and 100, on their
@@ -52,6 +52,50 @@ def test_each_panel_trains_its_share_of_the_budget():
                                       continuous=("fig3",)).continuous_panels()] == [
         "fig3-heading"]
     assert [p.key for p, _ in Settings.quick().continuous_panels()] == ["a-velocity"]
+
+
+def test_units_train_every_run_once_cut_evenly_costliest_first():
+    settings = Settings()
+    units = settings.units()
+    cost = [len(xs) * settings.steps_of(p) for *_, p, xs in units]
+    assert cost == sorted(cost, reverse=True)
+    assert [u[0] for u in units[:2]] == ["penalty-b.1", "penalty-b.2"]
+    assert {name for name, *_ in units} == {
+        *(f"penalty-{p}.{i}" for p in "abcd" for i in (1, 2)), "penalty-fig3"}
+    # Figure 3's slack (0, 0) is panel (a)'s first run: trained once, by (a)'s unit.
+    assert [xs for name, *_, xs in units if name == "penalty-fig3"] == [[100.0]]
+    sources = settings.sources()
+    assert sources["penalty-fig3"] == [("penalty-a.1", [0], False), ("penalty-fig3", [0], True)]
+    assert sources["penalty-b"] == [("penalty-b.1", [0, 1, 2, 3], True),
+                                    ("penalty-b.2", [0, 1, 2, 3], True)]
+    for job, form, panel, xs in settings.jobs():  # every run of a job, in order, is trained
+        found = {name: xs for name, *_, xs in units}
+        assert [found[u][i] for u, ids, _ in sources[job] for i in ids] == xs
+        assert {settings.run(form, panel, x) for x in xs} <= {
+            settings.run(f, p, x) for _, f, p, part in units for x in part}
+    # Two workers taking units in this order end within half a unit of each other.
+    loads = [0.0, 0.0]
+    for c in cost:
+        loads[loads.index(min(loads))] += c
+    assert max(loads) - min(loads) <= max(cost) / 2
+    # Other budgets for (a) and Figure 3: nothing shared.
+    apart = replace(settings, shares={**settings.shares, "fig3": 0.9})
+    assert [xs for name, *_, xs in apart.units() if name == "penalty-fig3"] == [[0.0, 100.0]]
+
+
+def test_a_panels_record_is_its_runs_along_the_slack_axis_wherever_they_trained():
+    first = {"x": [0.0, 1.0], "lar_correct": [[True], [False]], "paths": [[[1]], [[2]]],
+             "objectives": ["goal"], "seconds": 2.0, "runs": 2}
+    second = {**first, "x": [5.0], "lar_correct": [[False]], "paths": [[[3]]],
+              "seconds": 3.0, "runs": 1}
+    assert merge_records([first, second]) == {
+        "x": [0.0, 1.0, 5.0], "lar_correct": [[True], [False], [False]],
+        "paths": [[[1]], [[2]], [[3]]], "objectives": ["goal"], "seconds": 5.0, "runs": 3}
+    # A run borrowed from another panel's unit costs this panel nothing.
+    assert pick_runs(first, [1], own=False) == {
+        "x": [1.0], "lar_correct": [[False]], "paths": [[[2]]], "objectives": ["goal"],
+        "seconds": 0, "runs": 0}
+    assert pick_runs(first, [0, 1], own=True) == first
 
 
 def test_panels_sweep_the_edges_the_paper_names():
@@ -128,23 +172,31 @@ def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path):
         def run(self, units, tracker, done, folder):
             for u in units:
                 queued.append(u.name)
-                done(u.name, {"form": u.args[0], "panel": u.args[1].name})
+                done(u.name, {"x": u.args[2], "unit": u.name})
 
     (out / "panels").mkdir(parents=True)
-    (out / "panels" / "restriction-b.json").write_text(json.dumps({"mine": True}))
+    (out / "panels" / "restriction-b.json").write_text(json.dumps({"x": [0, 100],
+                                                                     "mine": True}))
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr("tpo.experiments.reproduce.write_outputs", lambda *a: None)
         result = reproduce(out, settings, seen.append, Fake())
-    assert queued == [f"{f}-{p}" for f in FORMS for p in ("a", "b", "c", "d", "fig3")
-                      if (f, p) != ("restriction", "b")] + ["penalty-a-velocity"]
-    assert seen[0] == {name: float(name == "restriction-b") for name, *_ in settings.jobs()}
+    assert sorted(queued) == sorted(
+        [f"{f}-{p}" for f in FORMS for p in ("a", "b", "c", "d", "fig3")
+         if (f, p) != ("restriction", "b")] + ["penalty-a-velocity"])
+    assert queued == [name for name, *_ in settings.units() if name != "restriction-b"]
+    assert seen[0] == {name: float(name == "restriction-b") for name, *_ in settings.units()}
     assert seen[-1] == dict.fromkeys(seen[0], 1.0)
     assert list(result.records) == list(FORMS)
-    assert result.records["restriction"]["b"] == {"mine": True}
-    assert result.records["penalty"]["fig3"] == {"form": "penalty", "panel": "fig3"}
-    assert result.continuous == {"a-velocity": {"form": "penalty", "panel": "a"}}
+    assert result.records["restriction"]["b"] == {"form": "restriction",
+                                                  "panel": asdict(PANELS[1]),
+                                                  "x": [0, 100], "mine": True}
+    # Figure 3's slack 0 is panel (a)'s run: its record takes it from (a)'s unit.
+    assert result.records["penalty"]["fig3"] == {"form": "penalty", "panel": asdict(FIGURE3),
+                                                 "x": [0.0, 100.0], "unit": "penalty-a"}
+    assert result.continuous["a-velocity"]["x"] == [0.0, 100.0]
+    assert result.continuous["a-velocity"]["panel"]["action"] == "velocity"
     assert json.loads((out / "panels" / "penalty-fig3.json").read_text()) == {
-        "form": "penalty", "panel": "fig3"}  # written by the driver as the unit finished
+        "x": [100.0], "unit": "penalty-fig3"}  # written by the driver as the unit finished
 
 
 class Interrupt(Exception):

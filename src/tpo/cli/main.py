@@ -396,7 +396,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     engine = backend_of(args)
     with exclusive(args.out, create=True) as out:
         weights = {name: len(xs) * len(settings.seeds) * settings.steps_of(panel)
-                   for name, _, panel, xs in settings.jobs()}
+                   for name, _, panel, xs in settings.units()}
         bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True,
                    disable=args.quiet, desc="reproduce")
         t0 = time.monotonic()

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+from tpo.graph import ObjectiveGraph
+
 
 @dataclass(frozen=True)
 class Panel:
@@ -50,16 +52,21 @@ FIGURE3 = Panel("fig3", "M>A>G", (0,), r"$\eta_1$")  # slack (0, 0) and (100, 0)
 FIGURE3_SLACKS = (0.0, 100.0)
 # Each panel's share of the budget, measured (benchmarks/sample_efficiency.py and the
 # reproduction, docs/notes/tpo-learning.md): panel (b) explores under a slack-0 root at
-# every slack and needs the whole budget; (a), (c) and Figure 3 are learned on two thirds
-# of it (on a third, 150/160 runs and Figure 3 8/10 were LAR-correct); the fan (d) on a
-# third gives the verdicts of two thirds, seed for seed (30/30, 30/30, 5/30; session 11).
-SHARES = {"a": 2 / 3, "b": 1.0, "c": 2 / 3, "d": 1 / 3, "fig3": 2 / 3}
+# every slack and needs the whole budget; (a), (c) and Figure 3 are learned on half of it
+# (on two thirds, 85/90 of their runs were LAR-correct, on half 84/90; on a third, 150/160
+# runs and Figure 3 8/10); the fan (d) on a third gives the verdicts of two thirds, seed
+# for seed (30/30, 30/30, 5/30; session 11).
+SHARES = {"a": 1 / 2, "b": 1.0, "c": 1 / 2, "d": 1 / 3, "fig3": 1 / 2}
 # The continuous robot's panels (tpo reproduce --continuous ACTION): each of Figure 2's
 # DAGs, and Figure 3, at slack 0 and 100 only, in the penalty form (the paper's, the
 # only one for a Gaussian policy); their budget is Settings.continuous_steps.
 CONTINUOUS_PANELS = ("a", "b", "c", "d", "fig3")
 CONTINUOUS_FORM = "penalty"
 CONTINUOUS_SLACKS = (0.0, 100.0)
+# A unit of work (one compiled program) holds at most this many of a panel's slack
+# values x every seed: a panel of 8 is two units, so that two workers share the panels
+# evenly (whole panels left one worker idle for the last 77 s; docs/scaling.md).
+UNIT_SLACKS = 4
 
 
 @dataclass(frozen=True)
@@ -111,6 +118,51 @@ class Settings:
                 *[(f"{CONTINUOUS_FORM}-{p.key}", CONTINUOUS_FORM, p, xs)
                   for p, xs in self.continuous_panels()]]
 
+    def units(self) -> list[tuple[str, str, Panel, list[float]]]:
+        """The units of work ``(unit, form, panel, xs)``: every job's runs that no
+        earlier job trains (:meth:`run`: Figure 3's slack (0, 0) is panel (a)'s first
+        when their budgets agree), cut into units of at most :data:`UNIT_SLACKS` slack
+        values, the costliest (runs x steps) first so that workers finish together. A
+        job trained by one unit gives it its name, else ``JOB.1``, ``JOB.2``, ... in
+        the order of their slacks (kept: the sort is stable, and only a job's last unit
+        is smaller)."""
+        units, seen = [], set()
+        for job, form, panel, xs in self.jobs():
+            own = [x for x in xs if self.run(form, panel, x) not in seen]
+            seen.update(self.run(form, panel, x) for x in own)
+            parts = [own[i:i + UNIT_SLACKS] for i in range(0, len(own), UNIT_SLACKS)]
+            units += [(job if len(parts) == 1 else f"{job}.{i + 1}", form, panel, part)
+                      for i, part in enumerate(parts)]
+        return sorted(units, key=lambda u: -len(u[3]) * self.steps_of(u[2]))
+
+    def sources(self) -> dict[str, list[tuple[str, list[int], bool]]]:
+        """Where every job's runs are trained, in its slacks' order: ``(unit, indices
+        of that unit's slack values, whether the unit is the job's own)``."""
+        trained = {self.run(form, panel, x): (unit, i, job_of(unit))
+                   for unit, form, panel, xs in self.units()
+                   for i, x in enumerate(xs)}
+        out: dict[str, list[tuple[str, list[int], bool]]] = {}
+        for job, form, panel, xs in self.jobs():
+            parts = out.setdefault(job, [])
+            for x in xs:
+                unit, i, owner = trained[self.run(form, panel, x)]
+                if parts and parts[-1][0] == unit:
+                    parts[-1][1].append(i)
+                else:
+                    parts.append((unit, [i], owner == job))
+        return out
+
+    def run(self, form: str, panel: Panel, x: float) -> tuple:
+        """What makes a run of ``panel`` at ``x`` the same as another's: its form, DAG,
+        action kind, every edge's slack and its budget."""
+        n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0).edges)
+        return (form, panel.dag, panel.action, tuple(panel.slack(x, n_edges)),
+                self.steps_of(panel))
+
+
+def job_of(unit: str) -> str:
+    """The job whose runs unit ``unit`` trains (``penalty-a.2`` -> ``penalty-a``)."""
+    return unit.rsplit(".", 1)[0]
 
 def direction(start: float, end: float, scale: float) -> str:
     """``up``, ``down`` or ``flat`` (a change under 1 % of ``scale`` or 0.5)."""

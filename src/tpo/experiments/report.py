@@ -27,6 +27,30 @@ from tpo.experiments.paper import (
 )
 from tpo.tabular import VERDICTS
 
+#: the keys of a unit's record (``x``, ``SweepResult.record()``, ``paths``, ``seconds``,
+#: ``runs``) that run along the slack axis, and those that add up
+ALONG_SLACKS = ("x", "slacks", "exact", "mc", "lar", "feasible", *VERDICTS, "paths")
+SUMMED = ("seconds", "runs")
+
+
+def pick_runs(record: dict[str, Any], indices: list[int], own: bool) -> dict[str, Any]:
+    """The runs at ``indices`` of a unit's slack axis; from another job's unit
+    (``own`` false) they cost this job nothing (its summed keys 0)."""
+    return {k: [v[i] for i in indices] if k in ALONG_SLACKS else v if own or k not in SUMMED
+            else 0 for k, v in record.items()}
+
+
+def merge_records(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """The records of units that cut one sweep's slack axis, in order, as one."""
+    merged = dict(records[0])
+    for key in merged:
+        if key in ALONG_SLACKS:
+            merged[key] = [v for r in records for v in r[key]]
+        elif key in SUMMED:
+            merged[key] = sum(r[key] for r in records)
+    return merged
+
+
 CSV_FIELDS = ("form", "panel", "dag", "x", "slack", "seed", "objective", "exact", "mc", "lar",
               "lar_feasible", *VERDICTS)
 

@@ -36,7 +36,14 @@ from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Unit, run_units
 from tpo.experiments.paper import CONTINUOUS_FORM, CONTINUOUS_PANELS, Panel, Settings
-from tpo.experiments.report import Records, directions, verdict_table, write_outputs
+from tpo.experiments.report import (
+    Records,
+    directions,
+    merge_records,
+    pick_runs,
+    verdict_table,
+    write_outputs,
+)
 
 if TYPE_CHECKING:
     from tpo.algo import TPOConfig
@@ -121,8 +128,8 @@ def check_settings(settings: Settings) -> None:
 
 def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, link: Link
               ) -> dict[str, Any]:
-    """Train and evaluate one panel in ``form`` (a unit of work, in a worker): its
-    record."""
+    """Train and evaluate the runs of ``panel`` at ``xs`` in ``form`` (a unit of work,
+    in a worker): their record."""
     from tpo.experiments.sweep import run_sweep
 
     env, config, slacks = panel_problem(form, panel, xs, settings)
@@ -131,8 +138,8 @@ def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, link
                        progress=lambda done, total: link.progress(done / total),
                        checkpoint=link)
     paths = [[path.tolist() for path in row] for row in result.paths]
-    return {"form": form, "panel": asdict(panel), "x": xs, **result.record(), "paths": paths,
-            "seconds": time.monotonic() - t0, "runs": len(slacks) * len(settings.seeds)}
+    return {"x": xs, **result.record(), "paths": paths, "seconds": time.monotonic() - t0,
+            "runs": len(slacks) * len(settings.seeds)}
 
 
 Progress = Callable[[dict[str, float]], None]
@@ -144,9 +151,9 @@ def reproduce(out: str | Path, settings: Settings | None = None,
     """Run (or finish) every panel into ``out`` and write figures, tables and report.
 
     A directory holding another reproduction (other settings, or runs of another
-    learner config) is refused; panels already in ``out/panels`` are skipped.
-    ``progress({job: fraction})`` is called at the start and as panels advance
-    (keys: the names of :meth:`Settings.jobs`). ``settings`` default to the
+    learner config) is refused; units already in ``out/panels`` are skipped.
+    ``progress({unit: fraction})`` is called at the start and as units advance
+    (keys: the names of :meth:`Settings.units`). ``settings`` default to the
     paper's (:class:`Settings`); ``backend`` to two local workers.
     """
     settings = settings or Settings()
@@ -168,12 +175,17 @@ def reproduce(out: str | Path, settings: Settings | None = None,
                            f"{', '.join(changed)}: see its settings.json); choose another --out")
     else:
         write_atomic(settings_file, json.dumps(mine))
-    units = [Unit(name, run_panel, (form, panel, xs, settings))
-             for name, form, panel, xs in settings.jobs()]
-    found = run_units(units, backend or LocalBackend(), out / "panels",
+    found = run_units([Unit(name, run_panel, (form, panel, xs, settings))
+                       for name, form, panel, xs in settings.units()],
+                      backend or LocalBackend(), out / "panels",
                       None if progress is None else lambda t: progress(dict(t.fractions)))
-    records = {form: {p.name: found[name] for name, f, p, _ in settings.jobs()
+    sources = settings.sources()
+    panel = {job: {"form": form, "panel": asdict(p),
+                   **merge_records([pick_runs(found[unit], indices, own)
+                                    for unit, indices, own in sources[job]])}
+             for job, form, p, _ in settings.jobs()}
+    records = {form: {p.name: panel[job] for job, f, p, _ in settings.jobs()
                       if f == form and not p.action} for form in settings.forms}
-    continuous = {p.key: found[name] for name, _, p, _ in settings.jobs() if p.action}
+    continuous = {p.key: panel[job] for job, _, p, _ in settings.jobs() if p.action}
     write_outputs(out, settings, records, continuous)
     return Reproduction(out, records, continuous)

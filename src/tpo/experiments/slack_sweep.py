@@ -35,7 +35,7 @@ from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, grid_model, load_map
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Tracker, Unit, run_units
-from tpo.experiments.report import CSV_FIELDS, record_rows, slack_table
+from tpo.experiments.report import CSV_FIELDS, merge_records, record_rows, slack_table
 from tpo.experiments.runspec import ACTION_KINDS, DYNAMICS
 from tpo.graph import ObjectiveGraph
 from tpo.locking import LOCK_FILE
@@ -245,14 +245,6 @@ def check_record(record: dict[str, Any], xs: list[float], seeds: int, path: Path
                          f"{', '.join(f'{x:g}' for x in xs)}; delete it to run the unit again")
 
 
-def merge(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """The units' records as one, along the slack axis."""
-    merged = dict(records[0])
-    for key in ("x", "slacks", "exact", "mc", "lar", "feasible", *VERDICTS):
-        merged[key] = [v for r in records for v in r[key]]
-    return merged
-
-
 def results_csv(spec: SweepSpec, record: dict[str, Any]) -> str:
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
@@ -356,7 +348,7 @@ def sweep(out: str | Path, spec: SweepSpec, backend: Backend | None = None,
     found = run_units(units, backend or LocalBackend(), out / "units", progress)
     for name, xs in spec.units():
         check_record(found[name], xs, spec.seeds, out / "units" / f"{name}.json")
-    record = merge([found[u.name] for u in units])
+    record = merge_records([found[u.name] for u in units])
     write_atomic(out / "results.csv", results_csv(spec, record))
     write_atomic(out / "results.json", json.dumps({"settings": json.loads(
         (out / "settings.json").read_text()), "exact": curve, "learned": record}))
