@@ -126,20 +126,24 @@ class Settings:
         job trained by one unit gives it its name, else ``JOB.1``, ``JOB.2``, ... in
         the order of their slacks (kept: the sort is stable, and only a job's last unit
         is smaller)."""
+        return [(unit, form, panel, xs) for unit, _, form, panel, xs in self._cut()]
+
+    def _cut(self) -> list[tuple[str, str, str, Panel, list[float]]]:
+        """:meth:`units` with the job each unit belongs to, second."""
         units, seen = [], set()
         for job, form, panel, xs in self.jobs():
             own = [x for x in xs if self.run(form, panel, x) not in seen]
             seen.update(self.run(form, panel, x) for x in own)
             parts = [own[i:i + UNIT_SLACKS] for i in range(0, len(own), UNIT_SLACKS)]
-            units += [(job if len(parts) == 1 else f"{job}.{i + 1}", form, panel, part)
+            units += [(job if len(parts) == 1 else f"{job}.{i + 1}", job, form, panel, part)
                       for i, part in enumerate(parts)]
-        return sorted(units, key=lambda u: -len(u[3]) * self.steps_of(u[2]))
+        return sorted(units, key=lambda u: -len(u[4]) * self.steps_of(u[3]))
 
     def sources(self) -> dict[str, list[tuple[str, list[int], bool]]]:
         """Where every job's runs are trained, in its slacks' order: ``(unit, indices
         of that unit's slack values, whether the unit is the job's own)``."""
-        trained = {self.run(form, panel, x): (unit, i, job_of(unit))
-                   for unit, form, panel, xs in self.units()
+        trained = {self.run(form, panel, x): (unit, i, owner)
+                   for unit, owner, form, panel, xs in self._cut()
                    for i, x in enumerate(xs)}
         out: dict[str, list[tuple[str, list[int], bool]]] = {}
         for job, form, panel, xs in self.jobs():
@@ -159,10 +163,6 @@ class Settings:
         return (form, panel.dag, panel.action, tuple(panel.slack(x, n_edges)),
                 self.steps_of(panel))
 
-
-def job_of(unit: str) -> str:
-    """The job whose runs unit ``unit`` trains (``penalty-a.2`` -> ``penalty-a``)."""
-    return unit.rsplit(".", 1)[0]
 
 def direction(start: float, end: float, scale: float) -> str:
     """``up``, ``down`` or ``flat`` (a change under 1 % of ``scale`` or 0.5)."""
