@@ -250,26 +250,33 @@ def test_train_continuous_writes_a_run_judged_against_the_reference(tmp_path, ca
     assert json.loads(capsys.readouterr().out)["reference"] == result["reference"]
 
 
-def test_a_velocity_robot_starts_from_the_gaussian_defaults_and_flags_win():
-    """A Gaussian policy takes no entropy bonus and Adam's 3e-4 unless told otherwise;
-    heading actions and the grid keep the categorical defaults; a saved run keeps its
+def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
+    """Velocity actions take a factorised categorical of 3 values per dimension with a
+    categorical's other defaults unless told otherwise; heading actions and the grid
+    keep the categorical defaults; a Gaussian keeps its own; a saved run keeps its
     own config."""
     from tpo.algo import TPO, TPOConfig
     from tpo.algo.config import GAUSSIAN_DEFAULTS
     from tpo.envs import ContinuousNav, load_map
     from tpo.experiments.runspec import RunSpec
 
-    gaussian = TPOConfig(**GAUSSIAN_DEFAULTS)
+    binned = TPOConfig(action_bins=3)
+    assert TPOConfig.defaults("discretized") == binned
+    gaussian = TPOConfig.defaults("gaussian")
+    assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
     assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
-    assert RunSpec.from_settings({"dynamics": "continuous"}).config == gaussian
+    assert RunSpec.from_settings({"dynamics": "continuous"}).config == binned
     assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \
         == TPOConfig() == RunSpec.from_settings({}).config
-    mine = RunSpec.from_settings({"dynamics": "continuous", "ent_coef": 0.05}).config
-    assert (mine.ent_coef, mine.learning_rate) == (0.05, 3e-4)
+    mine = RunSpec.from_settings({"dynamics": "continuous", "action_bins": 5}).config
+    assert (mine.action_bins, mine.ent_coef) == (5, TPOConfig().ent_coef)
     saved = RunSpec.from_settings({"dynamics": "continuous", **TPOConfig().to_dict()},
                                   saved=True)
     assert saved.config == TPOConfig()
+    # A saved config from before action_bins meant a Gaussian.
+    old = {k: v for k, v in binned.to_dict().items() if k != "action_bins"}
+    assert TPOConfig.from_saved(old).action_bins == 0
     navmap = load_map("small")
-    assert TPO(ContinuousNav(navmap), "goal").config == gaussian
+    assert TPO(ContinuousNav(navmap), "goal").config == binned
     assert TPO(ContinuousNav(navmap, action="heading"), "goal").config == TPOConfig()
     assert TPO(ContinuousNav(navmap), "goal", config=TPOConfig()).config == TPOConfig()

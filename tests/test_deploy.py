@@ -14,6 +14,7 @@ import onnxruntime as ort
 import pytest
 
 from tpo.algo import TPO, TPOConfig
+from tpo.algo.distributions import DiagGaussian
 from tpo.algo.export import export_policy
 from tpo.cli.main import main
 from tpo.deploy import DeployError, load_policy
@@ -35,9 +36,11 @@ def grid_model():
     return trained(GridNav(load_map("small")))
 
 
-@pytest.fixture(scope="module", params=["velocity", "heading"])
+@pytest.fixture(scope="module", params=["velocity", "velocity-binned", "heading"])
 def continuous_model(request):
-    return trained(ContinuousNav(load_map("small"), action=request.param))
+    action, _, binned = request.param.partition("-")
+    return trained(ContinuousNav(load_map("small"), action=action),
+                   action_bins=3 if binned else 0)
 
 
 def exported(model, tmp_path):
@@ -49,8 +52,8 @@ def exported(model, tmp_path):
 def jax_outputs(model, obs):
     pi = model.trainer.policy(model.trainer.acting(model.state, model.trainer.slack_array()),
                               jnp.asarray(obs))
-    return np.asarray(pi.mode()), np.asarray(pi.logits if model.trainer.actor.discrete
-                                             else pi.mean)
+    head = pi.mean if isinstance(pi, DiagGaussian) else pi.logits
+    return np.asarray(pi.mode()), np.asarray(head).reshape(len(obs), -1)
 
 
 def test_grid_policy_acts_alike_on_every_tabular_state(grid_model, tmp_path):
@@ -87,12 +90,14 @@ def test_continuous_policy_acts_alike_on_10000_observations(continuous_model, tm
                                    rtol=0, atol=1e-6)
     action, head = jax_outputs(model, obs)
     np.testing.assert_allclose(policy.forward(obs), head, atol=1e-5)
-    onnx_action, onnx_head = session.run(["action", "logits" if policy.discrete else "mean"],
+    gaussian = policy.log_std is not None
+    onnx_action, onnx_head = session.run(["action", "mean" if gaussian else "logits"],
                                          {"obs": obs})
     np.testing.assert_allclose(onnx_head, head, atol=1e-5)
-    if policy.discrete:
+    if not gaussian:  # a most likely action: an index, or each dimension's value
         np.testing.assert_array_equal(policy.act(obs), action)
         np.testing.assert_array_equal(onnx_action, action)
+        np.testing.assert_array_equal(policy.act(obs), model.predict(obs))
     else:
         np.testing.assert_allclose(policy.act(obs), action, atol=1e-5)
         np.testing.assert_allclose(onnx_action, action, atol=1e-5)

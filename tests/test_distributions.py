@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tpo.algo.distributions import Categorical, DiagGaussian
+from tpo.algo.distributions import Categorical, DiagGaussian, Discretized
 from tpo.algo.episodes import EpisodeStats
 
 
@@ -41,6 +41,29 @@ def test_diagonal_gaussian_by_hand():
     assert float(pi.entropy()) == pytest.approx(1.0 + np.log(2 * np.pi * np.e), abs=1e-6)
     draws = jax.vmap(pi.sample)(jax.random.split(jax.random.key(1), 4000))
     assert np.std(np.asarray(draws), axis=0) == pytest.approx([1.0, np.e], rel=0.05)
+
+
+def test_discretized_by_hand():
+    # Two dimensions of 3 values in [-1, 1] and [0, 4]: (-1, 0, 1) and (0, 2, 4).
+    logits = jnp.log(jnp.array([[0.2, 0.3, 0.5], [0.6, 0.3, 0.1]]))
+    pi = Discretized(logits, jnp.array([-1.0, 0.0]), jnp.array([1.0, 4.0]))
+    assert pi.mode().tolist() == [1.0, 0.0]
+    assert float(pi.log_prob(jnp.array([0.0, 4.0]))) == pytest.approx(np.log(0.3 * 0.1),
+                                                                      abs=1e-6)
+    # An action between two values counts as the nearest (what the env was sent).
+    assert float(pi.log_prob(jnp.array([-0.9, 2.4]))) == pytest.approx(np.log(0.2 * 0.3),
+                                                                       abs=1e-6)
+    h = -sum(p * np.log(p) for p in (0.2, 0.3, 0.5, 0.6, 0.3, 0.1))
+    assert float(pi.entropy()) == pytest.approx(h, abs=1e-6)
+    draws = np.asarray(jax.vmap(pi.sample)(jax.random.split(jax.random.key(1), 4000)))
+    assert set(draws[:, 0]) == {-1.0, 0.0, 1.0} and set(draws[:, 1]) == {0.0, 2.0, 4.0}
+    assert np.mean(draws[:, 0] == 1.0) == pytest.approx(0.5, abs=0.03)
+    assert np.mean(draws[:, 1] == 0.0) == pytest.approx(0.6, abs=0.03)
+    # Batch axes lead: [B, d, K] logits give [B, d] actions and [B] log-probabilities.
+    batch = Discretized(jnp.zeros((5, 2, 4)), jnp.array([-1.0, -1.0]), jnp.array([1.0, 1.0]))
+    assert batch.sample(jax.random.key(0)).shape == (5, 2)
+    assert batch.log_prob(jnp.zeros((5, 2))).shape == (5,)
+    assert float(batch.entropy()[0]) == pytest.approx(2 * np.log(4), abs=1e-6)
 
 
 def test_episode_statistics_update_on_jax_and_numpy_alike():

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from tpo.algo import TPO, TPOConfig
+from tpo.algo.config import ConfigError
 from tpo.atomic import UMASK
 from tpo.envs.gym_adapter import EnvError, HostEnv
 from tpo.errors import TPOError
@@ -183,6 +184,19 @@ class Slider(gym.Env):
         self.x, self.t = min(1.0, max(0.0, self.x + 0.1 * a)), self.t + 1
         reward = np.array([self.x - 1.0, -a * a])
         return np.array([self.x], np.float32), reward, self.x >= 1.0, self.t >= 50, {}
+
+
+class Unbounded(Slider):
+    action_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
+
+
+def test_a_box_without_bounds_takes_a_gaussian_and_cannot_be_discretized():
+    assert TPO(Slider, "distance", objectives=["distance", "effort"]).config.action_bins == 3
+    model = TPO(Unbounded, "distance", objectives=["distance", "effort"])
+    assert model.config == TPOConfig.defaults("gaussian")
+    with pytest.raises(ConfigError, match="action_bins needs an action space of finite bounds"):
+        TPO(Unbounded, "distance", objectives=["distance", "effort"],
+            config=TPOConfig(action_bins=3)).learn(10**4)
 
 
 @pytest.mark.slow

@@ -241,6 +241,8 @@ def test_schedules_restart_with_every_phase(small):
         ({"anneal_lr": 1}, "anneal_lr must be true or false"),
         ({"tie_break": 1.0}, "tie_break must be in [0, 1), got 1.0"),
         ({"tie_break": -0.1}, "tie_break must be a finite number >= 0"),
+        ({"action_bins": 1}, "action_bins must be 0 (Gaussian) or an integer from 2 to 256"),
+        ({"action_bins": True}, "action_bins must be 0 (Gaussian) or an integer"),
     ],
 )
 def test_bad_config_is_rejected(kwargs, message):

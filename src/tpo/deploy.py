@@ -105,18 +105,21 @@ class ContinuousObserver:
 
 @dataclass(frozen=True)
 class Policy:
-    """An exported actor: an MLP whose output is a categorical policy's logits or a
-    Gaussian's mean; :meth:`act` is its greedy action."""
+    """An exported actor: an MLP whose output is a categorical policy's logits, a
+    Gaussian's mean, or a discretized continuous action's logits (``d`` dimensions of
+    ``K`` values each, value ``k`` of dimension ``i`` being ``low_i + k step_i``);
+    :meth:`act` is its greedy action."""
 
     layers: tuple[tuple[np.ndarray, np.ndarray], ...]  # (kernel [in, out], bias [out])
     activation: str
-    log_std: np.ndarray | None  # a Gaussian's; None for discrete actions
+    log_std: np.ndarray | None  # a Gaussian's; else None
     meta: dict[str, Any]
     observer: GridObserver | ContinuousObserver | None
+    values: tuple[np.ndarray, np.ndarray] | None = None  # a discretized action's (low, step)
 
     @property
     def discrete(self) -> bool:
-        return self.log_std is None
+        return self.log_std is None and self.values is None
 
     @property
     def obs_size(self) -> int:
@@ -135,9 +138,14 @@ class Policy:
         return x @ kernel + bias
 
     def act(self, obs: Any) -> np.ndarray:
-        """The greedy action at ``obs [..., D]``: the most likely action's index, or the
-        Gaussian's mean (the env clips a velocity to ``[-1, 1]`` and unit length)."""
+        """The greedy action at ``obs [..., D]``: the most likely action's index, the
+        Gaussian's mean (the env clips a velocity to ``[-1, 1]`` and unit length), or
+        a discretized action's most likely value in each dimension."""
         out = self.forward(obs)
+        if self.values is not None:
+            low, step = self.values
+            index = np.argmax(out.reshape(*out.shape[:-1], low.shape[0], -1), axis=-1)
+            return (low + index * step).astype(np.float32)
         return np.argmax(out, axis=-1) if self.discrete else out
 
 
@@ -176,16 +184,22 @@ def _policy(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Policy:
                              f"{bias.shape} {bias.dtype}")
         width = kernel.shape[1]
     log_std = arrays.pop("log_std", None)
+    values = (arrays.pop("action/low"), arrays.pop("action/step")) \
+        if "action/low" in arrays else None
     continuous = meta["action"]["kind"] == "continuous"
-    if continuous != (log_std is not None) or (
-            log_std is not None and log_std.shape != (width,)):
+    if continuous != (log_std is not None or values is not None) or (
+            log_std is not None and (values is not None or log_std.shape != (width,))):
         raise ValueError(f"a {meta['action']['kind']} action with log_std "
                          f"{None if log_std is None else log_std.shape}")
+    if values is not None and (values[0].shape != values[1].shape or values[0].ndim != 1
+                               or not values[0].shape[0] or width % values[0].shape[0]):
+        raise ValueError(f"a discretized action of {width} logits with values "
+                         f"{values[0].shape} and {values[1].shape}")
     observer = _observer(meta["observation"]["kind"], arrays)
     unknown = [k for k in arrays if not k.startswith("observer/")]
     if unknown:
         raise ValueError(f"unknown arrays {unknown}")
-    return Policy(layers, activation, log_std, meta, observer)
+    return Policy(layers, activation, log_std, meta, observer, values)
 
 
 def _numbers(value: Any, what: str, dtype: type = np.float32) -> np.ndarray:

@@ -17,7 +17,7 @@ CONSTRAINTS = ("restriction", "penalty")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 #: fields added since tpo 0.2, and the value a config written before them meant: a
 #: saved model (or a run's config.toml) without the key was trained without the feature
-ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False}
+ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0}
 
 
 #: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
@@ -26,8 +26,14 @@ ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False}
 #: short and noisy; CleanRL's and SB3's continuous default) and Adam's step 3e-4;
 #: measured in docs/notes/tpo-learning.md (sessions 9, 11 and 12)
 GAUSSIAN_DEFAULTS = {"ent_coef": 0.0, "ent_coef_end": 0.0, "learning_rate": 3e-4}
+#: the defaults of each kind of policy (:meth:`TPOConfig.defaults`): a discretized
+#: continuous action has 3 values per dimension and a categorical's other defaults
+#: (the velocity robot's; docs/notes/tpo-learning.md, session 13)
+POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
+                   "discretized": {"action_bins": 3}}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
+MAX_BINS = 256  # values per dimension of a discretized continuous action
 
 
 class ConfigError(TPOError):
@@ -112,6 +118,11 @@ class TPOConfig:
     phase_fractions: tuple[float, ...] | None = field(default=None)
     """share of the timesteps of each phase: the objectives in topological order, then
     the completion phases (default: equal)"""
+    action_bins: int = 0
+    """a continuous (Box) action's policy: 0 for a diagonal Gaussian, K >= 2 for a
+    factorised categorical over K evenly spaced values of each dimension's bounds
+    (Tang & Agrawal 2020; the velocity robot's default is 3: docs/notes/tpo-learning.md,
+    session 13); no effect on discrete actions"""
     carry_temperature: float = 5.0
     """the policy carries over from phase to phase with its logits divided by this
     temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
@@ -150,6 +161,10 @@ class TPOConfig:
             raise ConfigError(f'beta must be a finite number >= 0 or "auto", got '
                               f"{self.beta!r}")
         _positive("carry_temperature", self.carry_temperature)
+        if isinstance(self.action_bins, bool) or not isinstance(self.action_bins, int) \
+                or not (self.action_bins == 0 or 2 <= self.action_bins <= MAX_BINS):
+            raise ConfigError(f"action_bins must be 0 (Gaussian) or an integer from 2 to "
+                              f"{MAX_BINS}, got {self.action_bins!r}")
         _nonnegative("tolerance", self.tolerance)
         _nonnegative("margin", self.margin)
         _nonnegative("explore", self.explore)
@@ -191,10 +206,10 @@ class TPOConfig:
         return tomli_w.dumps(self.to_dict())
 
     @classmethod
-    def defaults(cls, gaussian: bool = False, **values: Any) -> TPOConfig:
-        """The defaults for a categorical policy, or with ``gaussian`` for a Gaussian
-        one (:data:`GAUSSIAN_DEFAULTS`), with ``values`` on top."""
-        return cls.from_dict({**(GAUSSIAN_DEFAULTS if gaussian else {}), **values})
+    def defaults(cls, policy: str = "categorical", **values: Any) -> TPOConfig:
+        """The defaults for a ``policy`` of :data:`POLICY_DEFAULTS` (categorical,
+        gaussian or discretized), with ``values`` on top."""
+        return cls.from_dict({**POLICY_DEFAULTS[policy], **values})
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TPOConfig:

@@ -1,5 +1,6 @@
-"""The policy's action distributions: categorical (discrete actions) and diagonal
-Gaussian (continuous actions), with one interface, so no caller asks which.
+"""The policy's action distributions: categorical (discrete actions), and for
+continuous actions a diagonal Gaussian or a factorised categorical over evenly
+spaced values of each dimension, with one interface, so no caller asks which.
 
 Both are pytrees (``flax.struct``), so they pass through ``jit``, ``vmap`` and
 ``scan``; leading axes are batch axes.
@@ -64,4 +65,47 @@ class DiagGaussian:
             self.mean.shape[:-1])
 
 
-Distribution = Categorical | DiagGaussian
+@struct.dataclass
+class Discretized:
+    """A continuous action whose dimensions are independent categoricals over ``K``
+    evenly spaced values from ``low`` to ``high`` (Tang & Agrawal, "Discretizing
+    Continuous Action Space for On-Policy Optimization", AAAI 2020): ``pi(a | s) =
+    prod_i softmax(logits_i)_{k_i}`` with ``a_i = low_i + k_i (high_i - low_i) / (K - 1)``.
+
+    ``logits [..., d, K]``, ``low`` and ``high [d]``. Its support is the action box, so
+    no sample lies beyond a bound the env clips to (a Gaussian's mean drifts out there:
+    docs/notes/tpo-learning.md, session 13), and it explores as a categorical does.
+    """
+
+    logits: jax.Array
+    low: jax.Array
+    high: jax.Array
+
+    def values(self, index: jax.Array) -> jax.Array:
+        """The actions ``[..., d]`` of the value indices ``[..., d]``."""
+        step = (self.high - self.low) / (self.logits.shape[-1] - 1)
+        return self.low + index * step
+
+    def index(self, action: jax.Array) -> jax.Array:
+        """The nearest value's index ``[..., d]`` of each dimension of ``action``."""
+        k = self.logits.shape[-1]
+        x = (action - self.low) / (self.high - self.low) * (k - 1)
+        return jnp.clip(jnp.round(x), 0, k - 1).astype(jnp.int32)
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        return self.values(jax.random.categorical(key, self.logits))
+
+    def mode(self) -> jax.Array:
+        """The most likely value of each dimension (the lowest among equal logits)."""
+        return self.values(jnp.argmax(self.logits, axis=-1))
+
+    def log_prob(self, action: jax.Array) -> jax.Array:
+        logp = jax.nn.log_softmax(self.logits)
+        return jnp.take_along_axis(logp, self.index(action)[..., None], -1)[..., 0].sum(-1)
+
+    def entropy(self) -> jax.Array:
+        logp = jax.nn.log_softmax(self.logits)
+        return -jnp.sum(jnp.exp(logp) * logp, axis=(-2, -1))
+
+
+Distribution = Categorical | DiagGaussian | Discretized

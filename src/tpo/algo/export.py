@@ -45,6 +45,10 @@ def actor_arrays(model: TPO) -> dict[str, np.ndarray]:
               for name, value in params.items()}
     if "log_std" in actor:
         arrays["log_std"] = np.asarray(actor["log_std"], np.float32)
+    if trainer.actor.bins:  # a discretized action: value k of dimension i is low + k step
+        low, high = (np.asarray(v, np.float32) for v in (trainer.actor.low, trainer.actor.high))
+        arrays["action/low"] = low
+        arrays["action/step"] = (high - low) / np.float32(trainer.actor.bins - 1)
     return arrays
 
 
@@ -82,11 +86,17 @@ def action_meta(model: TPO) -> dict[str, Any]:
                     "meanings": [f"move {speed} cells toward (d_row, d_col) = "
                                  f"({r + 0.0:.3f}, {c + 0.0:.3f})"
                                  for r, c in np.round(headings(8), 3)]}
-        return {"kind": "continuous", "speed": speed,
+        return {"kind": "continuous", "speed": speed, **_bins(model),
                 "meanings": ["velocity (d_row, d_col), each clipped to [-1, 1], scaled down "
                              f"to unit length if longer, times {speed} cells per step"]}
-    return {"kind": "discrete" if model.trainer.actor.discrete else "continuous",
-            "meanings": [repr(env.action_space)]}
+    discrete = model._need_trainer().actor.discrete
+    return {"kind": "discrete" if discrete else "continuous",
+            **({} if discrete else _bins(model)), "meanings": [repr(env.action_space)]}
+
+
+def _bins(model: TPO) -> dict[str, Any]:
+    """A continuous action's ``bins``: its values per dimension (0: a Gaussian's mean)."""
+    return {"bins": model._need_trainer().actor.bins}
 
 
 def policy_meta(model: TPO, observation: dict[str, Any]) -> dict[str, Any]:
@@ -133,8 +143,10 @@ def export_policy(model: TPO, out: str | Path, fmt: str) -> Path:
 
 def onnx_model(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Any:
     """The actor as an ONNX model: input ``obs [N, D]``; outputs ``action`` (the greedy
-    action: an ``int64`` index, or the Gaussian's mean), ``logits`` or ``mean``, and
-    for a Gaussian ``log_std``; the metadata as the ``tpo`` metadata property."""
+    action: an ``int64`` index, the Gaussian's mean, or a discretized action's most
+    likely values ``low + argmax * step``), ``logits`` (``[N, d * K]`` for a
+    discretized action) or ``mean``, and for a Gaussian ``log_std``; the metadata as
+    the ``tpo`` metadata property."""
     try:
         import onnx
         from onnx import TensorProto, helper, numpy_helper
@@ -143,8 +155,9 @@ def onnx_model(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Any:
             from None
     activation = {"tanh": "Tanh", "relu": "Relu"}[meta["activation"]]
     names = [f"layer_{i}" for i in range(len(meta["hidden"]))] + ["out"]
-    discrete = "log_std" not in arrays
-    head = "logits" if discrete else "mean"
+    gaussian, binned = "log_std" in arrays, "action/low" in arrays
+    discrete = not gaussian and not binned
+    head = "mean" if gaussian else "logits"
     nodes, x = [], "obs"
     for i, name in enumerate(names):
         last = i == len(names) - 1
@@ -159,6 +172,19 @@ def onnx_model(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Any:
     if discrete:
         nodes.append(helper.make_node("ArgMax", [head], ["action"], axis=-1, keepdims=0))
         outputs.insert(0, helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]))
+    elif binned:
+        dims = arrays["action/low"].shape[0]
+        shape = numpy_helper.from_array(np.array([-1, dims, n_out // dims], np.int64),
+                                        "action/shape")
+        nodes += [helper.make_node("Reshape", [head, "action/shape"], ["action/logits"]),
+                  helper.make_node("ArgMax", ["action/logits"], ["action/index"], axis=-1,
+                                   keepdims=0),
+                  helper.make_node("Cast", ["action/index"], ["action/k"],
+                                   to=TensorProto.FLOAT),
+                  helper.make_node("Mul", ["action/k", "action/step"], ["action/offset"]),
+                  helper.make_node("Add", ["action/offset", "action/low"], ["action"])]
+        outputs.insert(0, helper.make_tensor_value_info("action", TensorProto.FLOAT,
+                                                        ["batch", dims]))
     else:
         nodes += [helper.make_node("Identity", [head], ["action"]),
                   helper.make_node("Identity", ["log_std_param"], ["log_std"])]
@@ -166,7 +192,7 @@ def onnx_model(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Any:
                                                         ["batch", n_out]))
         outputs.append(helper.make_tensor_value_info("log_std", TensorProto.FLOAT, [n_out]))
     weights = [numpy_helper.from_array(v, "log_std_param" if k == "log_std" else k)
-               for k, v in arrays.items()]
+               for k, v in arrays.items()] + ([shape] if binned else [])
     d = arrays["layer_0/kernel" if len(names) > 1 else "out/kernel"].shape[0]
     graph = helper.make_graph(
         nodes, "tpo_policy",

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tpo.algo.distributions import Categorical, DiagGaussian, Distribution
+from tpo.algo.distributions import Categorical, DiagGaussian, Discretized, Distribution
 
 ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
 #: a critic's advantage outputs are in this fraction of its value unit: advantages
@@ -53,36 +53,53 @@ class MLP(nn.Module):
 
 
 class Actor(nn.Module):
-    """The policy ``pi(. | obs)``: a :class:`Categorical` over ``n_out`` actions, or a
-    :class:`DiagGaussian` over ``n_out`` dimensions with a state-independent log-std
-    (:meth:`for_space` picks from an action space). Its output layer is ``out``."""
+    """The policy ``pi(. | obs)``: a :class:`Categorical` over ``n_out`` actions; over
+    ``n_out`` continuous dimensions a :class:`DiagGaussian` with a state-independent
+    log-std, or with ``bins >= 2`` a :class:`Discretized` over ``bins`` values of each
+    dimension from ``low`` to ``high`` (:meth:`for_space` picks from an action space).
+    Its output layer is ``out``."""
 
     hidden: Sequence[int]
     n_out: int
     discrete: bool
     activation: str = "tanh"
+    bins: int = 0
+    low: tuple[float, ...] = ()
+    high: tuple[float, ...] = ()
 
     @classmethod
     def for_space(cls, space: gym.spaces.Space, hidden: Sequence[int],
-                  activation: str) -> Actor:
-        """The actor of a ``Discrete`` or a 1-D ``Box`` action space."""
+                  activation: str, bins: int = 0) -> Actor:
+        """The actor of a ``Discrete`` or a 1-D ``Box`` action space (with ``bins``, a
+        ``Box`` of finite bounds takes the discretized policy)."""
         if isinstance(space, gym.spaces.Discrete):
             return cls(tuple(hidden), int(space.n), True, activation)
         if isinstance(space, gym.spaces.Box) and len(space.shape) == 1:
-            return cls(tuple(hidden), int(space.shape[0]), False, activation)
+            if not bins:
+                return cls(tuple(hidden), int(space.shape[0]), False, activation)
+            if not (np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))):
+                raise ValueError(f"action_bins needs an action space of finite bounds, got "
+                                 f"{space}")
+            return cls(tuple(hidden), int(space.shape[0]), False, activation, bins,
+                       tuple(map(float, space.low)), tuple(map(float, space.high)))
         raise ValueError(f"no policy for action space {space}")
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> Distribution:
-        out = dense_stack(obs, self.hidden, self.n_out, 0.01, self.activation)
+        width = self.n_out * self.bins if self.bins else self.n_out
+        out = dense_stack(obs, self.hidden, width, 0.01, self.activation)
         if self.discrete:
             return Categorical(out)
+        if self.bins:
+            return Discretized(out.reshape(*out.shape[:-1], self.n_out, self.bins),
+                               jnp.asarray(self.low), jnp.asarray(self.high))
         return DiagGaussian(out, self.param("log_std", nn.initializers.zeros, (self.n_out,)))
 
 
 def scale_output(actor_params: dict, factor: jax.Array) -> dict:
-    """The actor with its output layer scaled by ``factor``: a categorical policy's
-    logits divided by a temperature (a Gaussian's mean scaled likewise)."""
+    """The actor with its output layer scaled by ``factor``: a categorical (or
+    discretized) policy's logits divided by a temperature (a Gaussian's mean scaled
+    likewise)."""
     return {**actor_params, "out": jax.tree.map(lambda x: x * factor, actor_params["out"])}
 
 

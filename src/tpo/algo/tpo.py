@@ -45,7 +45,8 @@ class TPO:
             (a single name, e.g. ``"goal"``, is plain PPO).
         slack: one slack or one per edge (ignored when ``graph`` is a graph).
         config: hyperparameters (default :meth:`TPOConfig.defaults` for the env's
-            action space: a Gaussian policy's for a ``Box``).
+            action space: for a ``Box``, the discretized policy's if its bounds are
+            finite, else a Gaussian's).
         seed: PRNG seed of the parameters, the run and a Gymnasium env's resets.
         objectives: names of a Gymnasium env's reward components, in order.
     """
@@ -57,7 +58,9 @@ class TPO:
         self.config = config or TPOConfig()
         self.env = env = make_env(env, objectives, self.config.num_envs)
         if config is None and isinstance(env.action_space, gym.spaces.Box):
-            self.config = TPOConfig.defaults(gaussian=True)
+            bounded = np.all(np.isfinite(env.action_space.low)) and np.all(
+                np.isfinite(env.action_space.high))
+            self.config = TPOConfig.defaults("discretized" if bounded else "gaussian")
         if self.host and env.num_envs != self.config.num_envs:  # a vector env's copies
             self.config = dataclasses.replace(self.config, num_envs=env.num_envs)
         self.eval_env = None if self.host else from_spec(env.to_spec(), evaluation=True)

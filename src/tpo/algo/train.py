@@ -134,7 +134,11 @@ class Trainer:
         self.tolerance = (config.tolerance * ranges).astype(np.float32)
         #: penalty form: each constraint's margin below its slack (capped at half the slack)
         self.margin = (config.margin * ranges).astype(np.float32)
-        self.actor = Actor.for_space(space, config.hidden, config.activation)
+        try:
+            self.actor = Actor.for_space(space, config.hidden, config.activation,
+                                         config.action_bins)
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
         n_out = 1 + int(space.n) if self.restricts else 1
         self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation)
         n_phases = self.problem.n_phases

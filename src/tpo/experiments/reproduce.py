@@ -87,9 +87,9 @@ def learner(form: str, settings: Settings, action: str = "") -> TPOConfig:
     """The config every run of ``form`` trains with (``action``: the continuous
     robot's action kind, whose policy's defaults it takes; "" on the grid)."""
     from tpo.algo import TPOConfig
-    from tpo.experiments.runspec import gaussian
+    from tpo.experiments.runspec import policy
 
-    return TPOConfig.defaults(gaussian("continuous" if action else "grid", action),
+    return TPOConfig.defaults(policy("continuous" if action else "grid", action),
                               constraint=form, completion=settings.completion)
 
 

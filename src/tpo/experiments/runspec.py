@@ -18,10 +18,11 @@ DYNAMICS = ("grid", "continuous")
 ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: no JAX here)
 
 
-def gaussian(dynamics: str, action: str) -> bool:
-    """Whether the robot's policy is a Gaussian (velocity actions in continuous space),
-    which starts from its own defaults (:meth:`TPOConfig.defaults`)."""
-    return dynamics == "continuous" and action == "velocity"
+def policy(dynamics: str, action: str) -> str:
+    """The kind of the robot's policy, whose defaults it starts from
+    (:meth:`TPOConfig.defaults`): discretized for velocity actions in continuous
+    space, else categorical."""
+    return "discretized" if dynamics == "continuous" and action == "velocity" else "categorical"
 
 if TYPE_CHECKING:
     from tpo.algo import TPO
@@ -114,7 +115,7 @@ class RunSpec:
                    noise=float(run["noise"]), env=str(run["env"]),
                    objectives=tuple(objectives),
                    config=TPOConfig.from_saved(settings) if saved else TPOConfig.defaults(
-                       gaussian(run["dynamics"], run["action"]), **settings))
+                       policy(run["dynamics"], run["action"]), **settings))
 
     @classmethod
     def from_toml(cls, path: str | Path, saved: bool = False) -> RunSpec:
