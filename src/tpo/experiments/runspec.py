@@ -14,6 +14,9 @@ import tomli_w
 from tpo.algo.config import TPOConfig
 from tpo.errors import TPOError
 
+if TYPE_CHECKING:
+    from tpo.algo import TPO
+
 DYNAMICS = ("grid", "continuous")
 ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: no JAX here)
 
@@ -23,9 +26,6 @@ def policy(dynamics: str, action: str) -> str:
     (:meth:`TPOConfig.defaults`): discretized for velocity actions in continuous
     space, else categorical."""
     return "discretized" if dynamics == "continuous" and action == "velocity" else "categorical"
-
-if TYPE_CHECKING:
-    from tpo.algo import TPO
 
 
 class RunError(TPOError):
