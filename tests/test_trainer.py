@@ -1,5 +1,7 @@
 """The TPO trainer: plain PPO learns, phases freeze their critics, seeds vmap."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -135,6 +137,33 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
     assert float(penalties[0, 0]) == pytest.approx(penalty, abs=1e-4)
 
 
+@pytest.mark.parametrize(("update", "scale"), [(10, 0.0), (12, 0.4), (15, 1.0), (19, 1.0)])
+def test_the_multiplier_rises_over_the_warmup(small, update, scale):
+    """``beta_warmup = 0.5`` with phases of 10 updates: a goal-phase transition whose
+    penalty is 0.25 (A>G at slack 0) loses ``beta * scale * 0.25`` of advantage, the
+    scale rising from 0 at the phase's first update to 1 at its sixth."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("A>G", 0, objectives=OBJECTIVES)
+    advantages = []
+    for warmup in (0.0, 0.5):
+        config = TPOConfig(num_envs=1, num_steps=1, num_minibatches=1, beta_warmup=warmup)
+        trainer = Trainer(train_env, graph, config, 20)
+        state = trainer.init(jax.random.key(0)).replace(update=jnp.int32(update))
+        obs = state.obs[None]  # [T=1, E=1, D]
+        v_avoid = float(trainer.values(state, obs)[0, 0, 0, 0])  # head 0: avoid
+        reward = np.zeros((1, 1, len(OBJECTIVES)), np.float32)
+        reward[..., OBJECTIVES.index("avoid")] = -0.25 + (1 - 0.99) * v_avoid
+        zeros = jnp.zeros((1, 1))
+        rollout = Rollout(obs=obs, action=jnp.zeros((1, 1), jnp.int32), log_prob=zeros,
+                          reward=jnp.asarray(reward), final_obs=obs, terminated=zeros,
+                          done=zeros, allowed=None, explore=zeros)
+        batch, penalties, _ = trainer.lagrangian_targets(state, trainer.slack_array(),
+                                                         rollout, jnp.int32(1))
+        assert float(penalties[0, 0]) == pytest.approx(0.25, abs=1e-4)
+        advantages.append(float(batch.advantage[0]))
+    assert advantages[1] - advantages[0] == pytest.approx(10.0 * (1 - scale) * 0.25, abs=1e-4)
+
+
 @pytest.mark.parametrize("dag, expected", [
     # ranges on the grids: goal 1, avoid 2 (a bump costs 1 more), monitor 2
     # only the leaf breaks ties: an inner phase keeps every action it is indifferent
@@ -224,6 +253,10 @@ def test_schedules_restart_with_every_phase(small):
     np.testing.assert_allclose(ent, [0.1, 0.06, 0.1, 0.06, 0.1, 0.06], rtol=1e-6)
     lr = [float(trainer.learning_rate(u)) for u in (0, 5, 10, 30)]
     np.testing.assert_allclose(lr, [1e-3, 5e-4, 1e-3, 5e-4], rtol=1e-6)
+    assert {float(trainer.beta_scale(u)) for u in range(40)} == {1.0}  # no warmup
+    warm = Trainer(train_env, graph, dataclasses.replace(config, beta_warmup=0.25), 4 * 8 * 40)
+    scale = [float(warm.beta_scale(u)) for u in (0, 1, 2, 5, 10, 11, 20, 22, 25, 39)]
+    np.testing.assert_allclose(scale, [0, 0.5, 1, 1, 0, 0.5, 0, 0.4, 1, 1], rtol=1e-6)
 
 
 @pytest.mark.parametrize(
@@ -241,6 +274,8 @@ def test_schedules_restart_with_every_phase(small):
         ({"anneal_lr": 1}, "anneal_lr must be true or false"),
         ({"tie_break": 1.0}, "tie_break must be in [0, 1), got 1.0"),
         ({"tie_break": -0.1}, "tie_break must be a finite number >= 0"),
+        ({"beta_warmup": 1.5}, "beta_warmup must be in [0, 1], got 1.5"),
+        ({"beta_warmup": float("nan")}, "beta_warmup must be a finite number >= 0"),
         ({"action_bins": 1}, "action_bins must be 0 (Gaussian) or an integer from 2 to 256"),
         ({"action_bins": True}, "action_bins must be 0 (Gaussian) or an integer"),
     ],

@@ -17,7 +17,8 @@ CONSTRAINTS = ("restriction", "penalty")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 #: fields added since tpo 0.2, and the value a config written before them meant: a
 #: saved model (or a run's config.toml) without the key was trained without the feature
-ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0}
+ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
+         "beta_warmup": 0.0}
 
 
 #: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
@@ -112,6 +113,11 @@ class TPOConfig:
     beta: float | str = field(default=10.0, metadata={"metavar": "NUMBER|auto"})
     """penalty: Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a
     violation of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
+    beta_warmup: float = 0.0
+    """penalty: share of every phase over which the multiplier rises linearly from 0
+    to beta: a phase then explores before its constraints bind, which helps a child
+    whose reward lies where its zero-slack parent never goes and costs a child that
+    must keep its parent's path (docs/tpo-algorithm.md, "The multiplier beta")"""
     advantage: str = field(default="penalized", metadata={"choices": ADVANTAGE_FORMS})
     """penalized (GAE on the Lagrangian reward) or literal (Eq. 10 as printed);
     see docs/tpo-algorithm.md"""
@@ -161,6 +167,9 @@ class TPOConfig:
             raise ConfigError(f'beta must be a finite number >= 0 or "auto", got '
                               f"{self.beta!r}")
         _positive("carry_temperature", self.carry_temperature)
+        _nonnegative("beta_warmup", self.beta_warmup)
+        if self.beta_warmup > 1:
+            raise ConfigError(f"beta_warmup must be in [0, 1], got {self.beta_warmup!r}")
         if isinstance(self.action_bins, bool) or not isinstance(self.action_bins, int) \
                 or not (self.action_bins == 0 or 2 <= self.action_bins <= MAX_BINS):
             raise ConfigError(f"action_bins must be 0 (Gaussian) or an integer from 2 to "

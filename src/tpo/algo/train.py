@@ -164,17 +164,21 @@ class Trainer:
         self.learning_rate = self._per_phase(
             config.learning_rate, 0.0 if config.anneal_lr else config.learning_rate)
         self.ent_coef = self._per_phase(config.ent_coef, config.ent_coef_end)
+        # The penalty's multiplier rises from 0 over the first beta_warmup of every phase.
+        self.beta_scale = self._per_phase(0.0 if config.beta_warmup else 1.0, 1.0,
+                                          config.beta_warmup)
         # Actor and critics clip their gradient norms apart; Adam's state restarts
         # with every phase.
         self.optimizer = optax.chain(
             optax.clip_by_global_norm(config.max_grad_norm),
             optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate, eps=1e-5))
 
-    def _per_phase(self, start: float, end: float) -> optax.Schedule:
-        """A schedule over updates that goes linearly from ``start`` to ``end`` within
-        every phase."""
+    def _per_phase(self, start: float, end: float, share: float = 1.0) -> optax.Schedule:
+        """A schedule over updates that goes linearly from ``start`` to ``end`` over
+        the first ``share`` of every phase (then stays at ``end``)."""
         return optax.join_schedules(
-            [optax.linear_schedule(start, end, int(n)) for n in self.phase_updates],
+            [optax.linear_schedule(start, end, max(1, int(share * n)))
+             for n in self.phase_updates],
             [int(b) for b in self.phase_start[1:-1]])
 
     # ------------------------------------------------------------------ init
@@ -380,7 +384,8 @@ class Trainer:
         following = jnp.concatenate([rollout.explore[1:], jnp.zeros_like(rollout.explore[:1])])
         done = jnp.maximum(rollout.done, following)
         advantage, target = lagrangian_advantages(
-            cfg.advantage, reward, v, next_v, penalty, jnp.asarray(prob.beta)[phase],
+            cfg.advantage, reward, v, next_v, penalty,
+            jnp.asarray(prob.beta)[phase] * self.beta_scale(state.update),
             rollout.terminated, done, cfg.gamma, cfg.gae_lambda)
         if prob.tie.any():  # the ancestors' one-step advantages, bounded, then discounted
             bound = jnp.asarray(prob.tie_bound)[phase]
