@@ -108,6 +108,28 @@ def test_restricted_rollouts_act_within_the_admissible_actions(small):
     assert explore.mean() == pytest.approx(0.25, abs=0.05)
 
 
+def goal_phase_step(train_env, slack: float, avoid_advantage: float, total: int = 2,
+                    update: int = 0, **config) -> tuple[float, float]:
+    """The advantage and penalty of one goal-phase transition of ``A>G`` at ``slack``
+    (``s' = s``, a rollout of one step, at ``update``) whose one-step avoid advantage
+    ``r - (1 - gamma) V_avoid(s)`` is ``avoid_advantage``."""
+    graph = ObjectiveGraph.parse("A>G", slack, objectives=OBJECTIVES)
+    config = TPOConfig(num_envs=1, num_steps=1, num_minibatches=1, **config)
+    trainer = Trainer(train_env, graph, config, total)
+    state = trainer.init(jax.random.key(0)).replace(update=jnp.int32(update))
+    obs = state.obs[None]  # [T=1, E=1, D]
+    v_avoid = float(trainer.values(state, obs)[0, 0, 0, 0])  # head 0: avoid
+    reward = np.zeros((1, 1, len(OBJECTIVES)), np.float32)
+    reward[..., OBJECTIVES.index("avoid")] = avoid_advantage + (1 - 0.99) * v_avoid
+    zeros = jnp.zeros((1, 1))
+    rollout = Rollout(obs=obs, action=jnp.zeros((1, 1), jnp.int32), log_prob=zeros,
+                      reward=jnp.asarray(reward), final_obs=obs, terminated=zeros, done=zeros,
+                      allowed=None, explore=zeros)
+    batch, penalties, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
+                                                     jnp.int32(1))
+    return float(batch.advantage[0]), float(penalties[0, 0])
+
+
 @pytest.mark.parametrize(("slack", "gap", "penalty"), [
     (1.0, 0.8, 0.1),  # the margin: 0.15 x avoid's reward range 2 = 0.3 below the slack
     (1.0, 0.6, 0.0),
@@ -119,22 +141,8 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
     is ``max(0, gap - (slack - min(0.3, slack / 2)))``."""
     train_env, _ = small
     graph = ObjectiveGraph.parse("A>G", slack, objectives=OBJECTIVES)
-    trainer = Trainer(train_env, graph, TPOConfig(num_envs=1, num_steps=1, num_minibatches=1),
-                      2)
-    state = trainer.init(jax.random.key(0))
-    obs = state.obs[None]  # [T=1, E=1, D]
-    v_avoid = float(trainer.values(state, obs)[0, 0, 0, 0])  # head 0: avoid
-    reward = np.zeros((1, 1, len(OBJECTIVES)), np.float32)
-    # s' = s: the one-step advantage is r - (1 - gamma) V(s)
-    reward[..., OBJECTIVES.index("avoid")] = -gap + (1 - 0.99) * v_avoid
-    zeros = jnp.zeros((1, 1))
-    rollout = Rollout(obs=obs, action=jnp.zeros((1, 1), jnp.int32), log_prob=zeros,
-                      reward=jnp.asarray(reward), final_obs=obs, terminated=zeros, done=zeros,
-                      allowed=None, explore=zeros)
-    assert trainer.margin.tolist() == pytest.approx([0.3])
-    _, penalties, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
-                                                 jnp.int32(1))
-    assert float(penalties[0, 0]) == pytest.approx(penalty, abs=1e-4)
+    assert Trainer(train_env, graph, TPOConfig(), 10**6).margin.tolist() == pytest.approx([0.3])
+    assert goal_phase_step(train_env, slack, -gap)[1] == pytest.approx(penalty, abs=1e-4)
 
 
 @pytest.mark.parametrize(("update", "scale"), [(10, 0.0), (12, 0.4), (15, 1.0), (19, 1.0)])
@@ -143,25 +151,10 @@ def test_the_multiplier_rises_over_the_warmup(small, update, scale):
     penalty is 0.25 (A>G at slack 0) loses ``beta * scale * 0.25`` of advantage, the
     scale rising from 0 at the phase's first update to 1 at its sixth."""
     train_env, _ = small
-    graph = ObjectiveGraph.parse("A>G", 0, objectives=OBJECTIVES)
-    advantages = []
-    for warmup in (0.0, 0.5):
-        config = TPOConfig(num_envs=1, num_steps=1, num_minibatches=1, beta_warmup=warmup)
-        trainer = Trainer(train_env, graph, config, 20)
-        state = trainer.init(jax.random.key(0)).replace(update=jnp.int32(update))
-        obs = state.obs[None]  # [T=1, E=1, D]
-        v_avoid = float(trainer.values(state, obs)[0, 0, 0, 0])  # head 0: avoid
-        reward = np.zeros((1, 1, len(OBJECTIVES)), np.float32)
-        reward[..., OBJECTIVES.index("avoid")] = -0.25 + (1 - 0.99) * v_avoid
-        zeros = jnp.zeros((1, 1))
-        rollout = Rollout(obs=obs, action=jnp.zeros((1, 1), jnp.int32), log_prob=zeros,
-                          reward=jnp.asarray(reward), final_obs=obs, terminated=zeros,
-                          done=zeros, allowed=None, explore=zeros)
-        batch, penalties, _ = trainer.lagrangian_targets(state, trainer.slack_array(),
-                                                         rollout, jnp.int32(1))
-        assert float(penalties[0, 0]) == pytest.approx(0.25, abs=1e-4)
-        advantages.append(float(batch.advantage[0]))
-    assert advantages[1] - advantages[0] == pytest.approx(10.0 * (1 - scale) * 0.25, abs=1e-4)
+    base, penalty = goal_phase_step(train_env, 0.0, -0.25, 20, update)
+    warm, _ = goal_phase_step(train_env, 0.0, -0.25, 20, update, beta_warmup=0.5)
+    assert penalty == pytest.approx(0.25, abs=1e-4)
+    assert warm - base == pytest.approx(10.0 * (1 - scale) * 0.25, abs=1e-4)
 
 
 @pytest.mark.parametrize("dag, expected", [
@@ -191,24 +184,9 @@ def test_the_tie_break_adds_the_ancestors_advantages_bounded(small, avoid_advant
     advantage gains the weighted avoid advantage, at most ``tie_break * range_goal``
     in size (a rollout of one step: GAE is the one-step advantage)."""
     train_env, _ = small
-    graph = ObjectiveGraph.parse("A>G", 100, objectives=OBJECTIVES)
-    advantages = []
-    for tie in (0.0, 0.1):
-        config = TPOConfig(num_envs=1, num_steps=1, num_minibatches=1, tie_break=tie)
-        trainer = Trainer(train_env, graph, config, 2)
-        state = trainer.init(jax.random.key(0))
-        obs = state.obs[None]  # [T=1, E=1, D]
-        v_avoid = float(trainer.values(state, obs)[0, 0, 0, 0])  # head 0: avoid
-        reward = np.zeros((1, 1, len(OBJECTIVES)), np.float32)
-        reward[..., OBJECTIVES.index("avoid")] = avoid_advantage + (1 - 0.99) * v_avoid
-        zeros = jnp.zeros((1, 1))
-        rollout = Rollout(obs=obs, action=jnp.zeros((1, 1), jnp.int32), log_prob=zeros,
-                          reward=jnp.asarray(reward), final_obs=obs, terminated=zeros,
-                          done=zeros, allowed=None, explore=zeros)
-        batch, _, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
-                                                 jnp.int32(1))
-        advantages.append(float(batch.advantage[0]))
-    assert advantages[1] - advantages[0] == pytest.approx(gain, abs=1e-5)
+    off, _ = goal_phase_step(train_env, 100.0, avoid_advantage, tie_break=0.0)
+    on, _ = goal_phase_step(train_env, 100.0, avoid_advantage, tie_break=0.1)
+    assert on - off == pytest.approx(gain, abs=1e-5)
 
 
 def test_seeds_and_slacks_vmap_in_one_compiled_run(small):
