@@ -1,5 +1,7 @@
 """The continuous-space navigation env: moves, collisions, rewards, range sensors."""
 
+import tomllib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,7 +10,7 @@ import pytest
 from tpo.envs import load_map, parse_map
 from tpo.envs.continuous import ContinuousNav, headings
 from tpo.errors import MapError
-from tpo.sensing import blocked, pad_walls
+from tpo.sensing import blocked, cell_features, pad_walls
 
 ROOM = '''
 max_steps = 6
@@ -104,13 +106,32 @@ def test_range_sensors_by_hand(room):
     # Up and left: the wall face at 1.0 is 0.5 away; right: 3.5 to column 5; down: 2.5.
     assert np.allclose(beams[[0, 2, 4, 6]], [0.5, 3.5, 2.5, 0.5])
     assert beams[1] == pytest.approx(np.sqrt(0.5), abs=0.15)  # up-right, sampled every 0.2
-    assert obs[10:].tolist() == [0.0, 0.0]  # not in avoid or monitor
+    assert obs[10:12].tolist() == [0.0, 0.0]  # not in avoid or monitor
+    # The factored observation's tents: the centre of cell (1, 1) is its row's and
+    # column's one-hot (the map is 5 x 6).
+    assert obs[12:].tolist() == [0, 1, 0, 0, 0] + [0, 1, 0, 0, 0, 0]
+    coords = ContinuousNav(room.navmap, max_range=4.0, observation="coords")
+    assert coords.obs_shape == (12,) and room.obs_shape == (12 + 5 + 6,)
+    assert np.array_equal(np.asarray(coords.reset(jax.random.key(0), coords.params)[0]),
+                          obs[:12])
+
+
+def test_cell_features_by_hand():
+    # Between the centres of rows 1 and 2, a quarter of the way from column 1's centre
+    # to column 0's: the tents share the weight linearly.
+    f = cell_features(np.array([2.0, 1.25], np.float32), (4, 3))
+    assert np.allclose(f, [0, 0.5, 0.5, 0] + [0.25, 0.75, 0])
+    # Any position's row tents and column tents each sum to one inside the centres.
+    f = cell_features(np.array([1.9, 0.7], np.float32), (4, 3))
+    assert np.isclose(f[:4].sum(), 1.0) and np.isclose(f[4:].sum(), 1.0)
 
 
 def test_bad_settings_are_rejected():
     m = load_map("home")
     with pytest.raises(MapError, match="unknown action kind 'torque'"):
         ContinuousNav(m, action="torque")
+    with pytest.raises(MapError, match="unknown continuous observation 'onehot'"):
+        ContinuousNav(m, observation="onehot")
     with pytest.raises(MapError, match="speed must be in"):
         ContinuousNav(m, speed=1.5)
     with pytest.raises(MapError, match="noise must be"):
@@ -130,3 +151,26 @@ def test_blocked_is_off_the_map_or_in_a_wall_by_hand(xp):
     assert padded.shape == (4, 5)
     got = np.asarray(blocked(xp.asarray(points), padded, xp)).tolist()
     assert got == [False, True, False, True] + [True] * 7
+
+
+def test_what_was_saved_before_the_factored_observation_reads_as_coords():
+    """A continuous env spec, a run's settings and an exported observer written before
+    the factored observation existed mean the coordinates alone; new ones say which."""
+    from tpo.deploy import _observer
+    from tpo.envs import from_spec
+    from tpo.experiments.runspec import RunSpec
+
+    env = ContinuousNav(load_map("small"))
+    spec = env.to_spec()
+    assert spec["observation"] == "factored" and from_spec(spec).observation == "factored"
+    old = {k: v for k, v in spec.items() if k != "observation"}
+    assert from_spec(old).observation == "coords"
+    assert RunSpec.from_settings({"dynamics": "continuous"}, saved=True).observation == "coords"
+    assert RunSpec.from_settings({"dynamics": "continuous"}).observation == "factored"
+    run = RunSpec.from_settings({"dynamics": "continuous", "observation": "coords"})
+    assert RunSpec.from_settings(tomllib.loads(run.to_toml()), saved=True) == run
+    arrays = {f"observer/{n}": np.asarray(getattr(env.params, n)) for n in
+              ("avoid", "monitor", "beams", "ray_t")}
+    arrays["observer/walls"] = np.asarray(env.navmap.walls)
+    assert not _observer("continuous", arrays).factored
+    assert _observer("continuous", {**arrays, "observer/factored": np.asarray(True)}).factored

@@ -95,6 +95,8 @@ def test_gym_kwargs_reach_the_env():
     env = gym.make("tpo/GridNav-home-v0", observation="coords", slip=0.1)
     assert env.observation_space.shape == (8,)
     cont = gym.make("tpo/ContinuousNav-home-v0", n_beams=16)
+    assert cont.observation_space.shape == (4 + 16 + 11 + 30,)  # + home's rows and columns
+    cont = gym.make("tpo/ContinuousNav-home-v0", n_beams=16, observation="coords")
     assert cont.observation_space.shape == (20,)
     assert isinstance(gym.make("tpo/ContinuousNavHeading-home-v0").action_space,
                       gym.spaces.Discrete)

@@ -66,6 +66,7 @@ class ContinuousObserver:
     monitor: np.ndarray
     beams: np.ndarray  # [K, 2] sensor directions (d_row, d_col), clockwise from up
     ray_t: np.ndarray  # [M] distances sampled along a beam
+    factored: bool = False  # the observation ends with sensing.cell_features
 
     @property
     def max_range(self) -> float:
@@ -81,8 +82,9 @@ class ContinuousObserver:
         return sensing.pad_walls(self.walls)
 
     def observe(self, position: Any, ranges: Any | None = None) -> np.ndarray:
-        """The observation ``float32 [4 + K]`` at ``position`` (row, col in cells) with
-        the robot's own ``ranges [K]`` (cells; by default :meth:`ranges`)."""
+        """The observation ``float32 [4 + K]`` (``[4 + K + H + W]`` when
+        :attr:`factored`) at ``position`` (row, col in cells) with the robot's own
+        ``ranges [K]`` (cells; by default :meth:`ranges`)."""
         pos = self._position(position)
         readings = self.ranges(pos) if ranges is None else _numbers(ranges, "ranges")
         if readings.shape != (len(self.beams),) or not np.all(readings >= 0):
@@ -90,7 +92,7 @@ class ContinuousObserver:
                               f"{np.asarray(ranges)!r:.80}")
         readings = np.minimum(readings, np.float32(self.max_range))  # the sensor's reach
         return sensing.observation(pos, readings, self.avoid, self.monitor,
-                                   np.float32(self.max_range))
+                                   np.float32(self.max_range), factored=self.factored)
 
     def _position(self, position: Any) -> np.ndarray:
         pos = _numbers(position, "position", np.float64)
@@ -219,7 +221,8 @@ def _observer(kind: str, arrays: dict[str, np.ndarray]
         raise ValueError(f"observation kind {kind!r:.40}")
     if kind == "continuous":
         return ContinuousObserver(*(arrays[f"observer/{n}"] for n in
-                                    ("walls", "avoid", "monitor", "beams", "ray_t")))
+                                    ("walls", "avoid", "monitor", "beams", "ray_t")),
+                                  factored=bool(arrays.get("observer/factored", False)))
     if kind in ("factored", "onehot", "coords"):
         return GridObserver(arrays["observer/table"])
     return None  # an env of the user's own: its observations are the env's

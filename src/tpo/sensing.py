@@ -47,13 +47,29 @@ def range_readings(pos: Any, padded: Any, beams: Any, ray_t: Any, xp: Any = np) 
 
 
 def observation(pos: Any, distances: Any, avoid: Any, monitor: Any, max_range: Any,
-                xp: Any = np) -> Any:
+                xp: Any = np, factored: bool = False) -> Any:
     """The observation ``[4 + K]``: ``pos`` scaled to ``[0, 1]`` by the map's shape,
     ``distances [K]`` divided by ``max_range``, and whether ``pos`` is in an avoid and
-    in a monitor region."""
+    in a monitor region; ``factored`` appends :func:`cell_features` (``[4 + K + H + W]``)."""
     h, w = avoid.shape
     cell = xp.floor(pos).astype(xp.int32)
-    return xp.concatenate([
-        pos / xp.array([h, w], xp.float32),
-        distances / max_range,
-        xp.stack([avoid[cell[0], cell[1]], monitor[cell[0], cell[1]]]).astype(xp.float32)])
+    parts = [pos / xp.array([h, w], xp.float32),
+             distances / max_range,
+             xp.stack([avoid[cell[0], cell[1]], monitor[cell[0], cell[1]]]).astype(xp.float32)]
+    if factored:
+        parts.append(cell_features(pos, (h, w), xp))
+    return xp.concatenate(parts)
+
+
+def cell_features(pos: Any, shape: tuple[int, int], xp: Any = np) -> Any:
+    """The continuous counterpart of the grid's row and column one-hots, ``[H + W]``:
+    a tent of width one cell about every row's and column's centre,
+    ``max(0, 1 - |pos - (i + 1/2)|)``. At a cell's centre they are its row's and
+    column's one-hots; between two centres they share the weight linearly, so
+    they are continuous in the position. Sharp local features an MLP combines
+    into places (the grid's factored observation learns TPO's critics where
+    coordinates alone do not: README, "Observations")."""
+    h, w = shape
+    row = xp.maximum(0.0, 1.0 - xp.abs(pos[0] - (xp.arange(h, dtype=xp.float32) + 0.5)))
+    col = xp.maximum(0.0, 1.0 - xp.abs(pos[1] - (xp.arange(w, dtype=xp.float32) + 0.5)))
+    return xp.concatenate([row, col]).astype(xp.float32)

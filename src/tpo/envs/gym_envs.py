@@ -120,9 +120,11 @@ class ContinuousNavEnv(NavEnv):
 
     def __init__(self, map: str = "home", action: str = "velocity", speed: float = 0.5,
                  noise: float = 0.0, n_beams: int = 8, max_range: float = 6.0,
-                 max_steps: int | None = None, render_mode: str | None = None) -> None:
+                 max_steps: int | None = None, observation: str = "factored",
+                 render_mode: str | None = None) -> None:
         env = ContinuousNav(load_map(map), action=action, speed=speed, noise=noise,
-                            n_beams=n_beams, max_range=max_range, max_steps=max_steps)
+                            n_beams=n_beams, max_range=max_range, max_steps=max_steps,
+                            observation=observation)
         box = spaces.Box(0.0, 1.0, env.obs_shape, np.float32)
         super().__init__(env, box, env.action_space, render_mode)
 

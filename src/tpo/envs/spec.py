@@ -54,7 +54,7 @@ SPEC_KEYS: dict[str, dict[str, type | tuple[type, ...]]] = {
              "random_start": bool},
     "continuous": {"map": str, "action": str, "speed": Number, "noise": Number,
                    "n_beams": int, "max_range": Number, "max_steps": int,
-                   "random_start": bool},
+                   "random_start": bool, "observation": str},
     "gym": {"id": str, "objectives": list},
 }
 
@@ -77,7 +77,8 @@ def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int =
     copies and is rebuilt without importing any module the spec names, unless it
     is ``trust_module`` (:func:`tpo.envs.gym_adapter.env_factory`)."""
     if isinstance(spec, dict) and spec.get("kind") == "continuous":
-        spec = {"random_start": False, **spec}  # saved before continuous random starts
+        # saved before continuous random starts, and before the factored observation
+        spec = {"random_start": False, "observation": "coords", **spec}
     check_spec(spec)
     spec = dict(spec)
     kind = spec.pop("kind")

@@ -63,6 +63,7 @@ SHARES = {"a": 1 / 2, "b": 1.0, "c": 1 / 2, "d": 1 / 3, "fig3": 1 / 2}
 CONTINUOUS_PANELS = ("a", "b", "c", "d", "fig3")
 CONTINUOUS_FORM = "penalty"
 CONTINUOUS_SLACKS = (0.0, 100.0)
+CONTINUOUS_OBSERVATION = "factored"  # ContinuousNav's observation (a reproduction's setting)
 # A unit of work (one compiled program) holds at most this many of a panel's slack
 # values x every seed: a panel of 8 is two units, so that two workers share the panels
 # evenly (whole panels left one worker idle for the last 77 s; docs/scaling.md).

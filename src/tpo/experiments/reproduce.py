@@ -35,7 +35,13 @@ from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, load_map
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Unit, run_units
-from tpo.experiments.paper import CONTINUOUS_FORM, CONTINUOUS_PANELS, Panel, Settings
+from tpo.experiments.paper import (
+    CONTINUOUS_FORM,
+    CONTINUOUS_OBSERVATION,
+    CONTINUOUS_PANELS,
+    Panel,
+    Settings,
+)
 from tpo.experiments.report import (
     Records,
     directions,
@@ -77,7 +83,8 @@ def panel_problem(form: str, panel: Panel, xs: list[float], settings: Settings
     from tpo.graph import ObjectiveGraph
 
     navmap = load_map(settings.map)
-    env = (ContinuousNav(navmap, action=panel.action, random_start=True) if panel.action
+    env = (ContinuousNav(navmap, action=panel.action, observation=CONTINUOUS_OBSERVATION,
+                         random_start=True) if panel.action
            else GridNav(navmap, random_start=True))
     n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0, objectives=OBJECTIVES).edges)
     return env, learner(form, settings, panel.action), [panel.slack(x, n_edges) for x in xs]
@@ -164,8 +171,9 @@ def reproduce(out: str | Path, settings: Settings | None = None,
     mine = asdict(settings)
     mine["learners"] = {form: learner(form, settings).to_dict() for form in settings.forms}
     if settings.continuous:
-        mine["learners"][f"continuous-{settings.action}"] = learner(
-            CONTINUOUS_FORM, settings, settings.action).to_dict()
+        mine["learners"][f"continuous-{settings.action}"] = {
+            **learner(CONTINUOUS_FORM, settings, settings.action).to_dict(),
+            "observation": CONTINUOUS_OBSERVATION}
     mine = json.loads(json.dumps(mine))
     if settings_file.exists():
         theirs = json.loads(settings_file.read_text())

@@ -54,7 +54,7 @@ class RunSpec:
     """grid: probability that a move goes in another direction"""
     observation: str = field(default="factored",
                              metadata={"choices": ("factored", "onehot", "coords")})
-    """grid observation: factored, onehot or coords"""
+    """observation: factored, onehot (grid only) or coords"""
     action: str = field(default="velocity", metadata={"choices": ACTION_KINDS})
     """continuous: velocity (a 2-vector) or heading (one of 8 compass headings)"""
     noise: float = 0.0
@@ -72,6 +72,8 @@ class RunSpec:
         settings of a run that tpo wrote (:meth:`TPOConfig.from_saved`)."""
         settings = dict(settings)
         defaults = {f.name: f.default for f in fields(cls) if f.name != "config"}
+        if saved and settings.get("dynamics") == "continuous":
+            defaults["observation"] = "coords"  # what a continuous run saved before it meant
         run = {name: settings.pop(name, default) for name, default in defaults.items()}
         slack = run["slack"]
         slack = [slack] if isinstance(slack, int | float) else slack
@@ -96,7 +98,7 @@ class RunSpec:
         if run["dynamics"] not in DYNAMICS:
             raise RunError(f"dynamics must be one of {', '.join(DYNAMICS)}, "
                            f"got {run['dynamics']!r:.60}")
-        other = {"grid": ("action", "noise"), "continuous": ("slip", "observation")}
+        other = {"grid": ("action", "noise"), "continuous": ("slip",)}
         given = [n for n in other[run["dynamics"]] if run[n] != defaults[n]]
         if given:
             raise RunError(f"{given[0]} is not an option of {run['dynamics']} dynamics")
@@ -130,7 +132,7 @@ class RunSpec:
             problem = {"env": self.env, "objectives": list(self.objectives)}
         elif self.dynamics == "continuous":
             problem = {"map": self.map, "dynamics": self.dynamics, "action": self.action,
-                       "noise": self.noise}
+                       "noise": self.noise, "observation": self.observation}
         else:
             problem = {"map": self.map, "slip": self.slip, "observation": self.observation}
         return tomli_w.dumps({**problem, "dag": self.dag, "slack": list(self.slack),
@@ -156,7 +158,7 @@ class RunSpec:
                        seed=self.seed, objectives=self.objectives)
         if self.dynamics == "continuous":
             env = ContinuousNav(load_map(self.map), action=self.action, noise=self.noise,
-                                random_start=True)
+                                observation=self.observation, random_start=True)
         else:
             env = GridNav(load_map(self.map), slip=self.slip, observation=self.observation,
                           random_start=True)
