@@ -68,7 +68,7 @@ class ContinuousParams:
     noise: jax.Array  # float32 []
     beams: jax.Array  # float32 [K, 2] sensor directions
     ray_t: jax.Array  # float32 [M] distances sampled along a beam
-    factored: bool = struct.field(pytree_node=False, default=True)  # + cell_features
+    factored: bool = struct.field(pytree_node=False)  # + cell_features (static: a shape)
 
 
 @struct.dataclass
@@ -98,7 +98,7 @@ class ContinuousNav(JaxEnv):
         steps = check_max_steps(int(np.ceil(navmap.max_steps / speed)) if max_steps is None
                                 else max_steps)
         self.navmap, self.action, self.max_range = navmap, action, float(max_range)
-        self.random_start, self.observation = random_start, observation
+        self.random_start = random_start
         self.action_space = (gym.spaces.Discrete(8) if action == "heading"
                              else gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self.params = ContinuousParams(
@@ -111,6 +111,11 @@ class ContinuousNav(JaxEnv):
             beams=jnp.asarray(headings(n_beams)),
             ray_t=jnp.asarray(ray_distances(max_range)),
             factored=observation == "factored")
+
+    @property
+    def observation(self) -> str:
+        """The observation's kind (one of :data:`OBSERVATIONS`)."""
+        return "factored" if self.params.factored else "coords"
 
     @property
     def obs_shape(self) -> tuple[int]:
