@@ -251,7 +251,7 @@ def test_train_continuous_writes_a_run_judged_against_the_reference(tmp_path, ca
 
 
 def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
-    """Velocity actions take a factorised categorical of 3 values per dimension with a
+    """Velocity actions take a factorised categorical of 5 values per dimension with a
     categorical's other defaults unless told otherwise; heading actions and the grid
     keep the categorical defaults; a Gaussian keeps its own; a saved run keeps its
     own config."""
@@ -260,7 +260,7 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     from tpo.envs import ContinuousNav, load_map
     from tpo.experiments.runspec import RunSpec
 
-    binned = TPOConfig(action_bins=3)
+    binned = TPOConfig(action_bins=5)
     assert TPOConfig.defaults("discretized") == binned
     gaussian = TPOConfig.defaults("gaussian")
     assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
@@ -268,8 +268,8 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     assert RunSpec.from_settings({"dynamics": "continuous"}).config == binned
     assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \
         == TPOConfig() == RunSpec.from_settings({}).config
-    mine = RunSpec.from_settings({"dynamics": "continuous", "action_bins": 5}).config
-    assert (mine.action_bins, mine.ent_coef) == (5, TPOConfig().ent_coef)
+    mine = RunSpec.from_settings({"dynamics": "continuous", "action_bins": 3}).config
+    assert (mine.action_bins, mine.ent_coef) == (3, TPOConfig().ent_coef)
     saved = RunSpec.from_settings({"dynamics": "continuous", **TPOConfig().to_dict()},
                                   saved=True)
     assert saved.config == TPOConfig()

@@ -28,10 +28,11 @@ ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
 #: measured in docs/notes/tpo-learning.md (sessions 9, 11 and 12)
 GAUSSIAN_DEFAULTS = {"ent_coef": 0.0, "ent_coef_end": 0.0, "learning_rate": 3e-4}
 #: the defaults of each kind of policy (:meth:`TPOConfig.defaults`): a discretized
-#: continuous action has 3 values per dimension and a categorical's other defaults
-#: (the velocity robot's; docs/notes/tpo-learning.md, session 13)
+#: continuous action has 5 values per dimension (the velocity robot's 16 full-speed
+#: directions; 3 give 8, whose paths are up to 8 % longer) and a categorical's other
+#: defaults (docs/notes/tpo-learning.md, sessions 13 and 16)
 POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
-                   "discretized": {"action_bins": 3}}
+                   "discretized": {"action_bins": 5}}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
@@ -127,8 +128,8 @@ class TPOConfig:
     action_bins: int = 0
     """a continuous (Box) action's policy: 0 for a diagonal Gaussian, K >= 2 for a
     factorised categorical over K evenly spaced values of each dimension's bounds
-    (Tang & Agrawal 2020; the velocity robot's default is 3: docs/notes/tpo-learning.md,
-    session 13); no effect on discrete actions"""
+    (Tang & Agrawal 2020; the velocity robot's default is 5: docs/notes/tpo-learning.md,
+    sessions 13 and 16); no effect on discrete actions"""
     carry_temperature: float = 5.0
     """the policy carries over from phase to phase with its logits divided by this
     temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
