@@ -250,6 +250,15 @@ def test_train_continuous_writes_a_run_judged_against_the_reference(tmp_path, ca
     assert json.loads(capsys.readouterr().out)["reference"] == result["reference"]
 
 
+def test_a_continuous_run_takes_the_continuous_budget_unless_told():
+    from tpo.experiments.runspec import DEFAULT_STEPS, RunSpec
+
+    assert DEFAULT_STEPS == {"grid": 1_000_000, "continuous": 4_000_000}
+    assert RunSpec.from_settings({"dynamics": "continuous"}).steps == 4_000_000
+    assert RunSpec.from_settings({"dynamics": "continuous", "steps": 5000}).steps == 5000
+    assert RunSpec.from_settings({}).steps == RunSpec().steps == 1_000_000
+
+
 def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     """Velocity actions take a factorised categorical of 5 values per dimension with a
     categorical's other defaults unless told otherwise; heading actions and the grid

@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from types import SimpleNamespace
 
 import pytest
 
@@ -17,6 +18,7 @@ from tpo.algo import TPOConfig
 from tpo.cli.main import main
 from tpo.envs import grid_model, load_map
 from tpo.experiments.engine import RayBackend
+from tpo.experiments.runspec import DEFAULT_STEPS
 from tpo.experiments.slack_sweep import SweepSpec, sweep
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import Judge, solve_lar
@@ -111,6 +113,19 @@ def test_a_folder_of_the_users_is_not_a_sweep(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == (
         f"tpo: error: {tmp_path} is not empty and holds no tpo sweep; choose another --out")
     assert (tmp_path / "results.csv").read_text() == "mine"
+
+
+def test_a_continuous_sweep_takes_the_continuous_budget_unless_told(tmp_path, monkeypatch):
+    import tpo.cli.main as cli
+
+    seen = []
+    monkeypatch.setattr(cli, "_learned_sweep", lambda args, out, spec, engine: seen.append(
+        spec.steps) or SimpleNamespace(summary=str))
+    for i, extra in enumerate((["--dynamics", "continuous"],
+                               ["--dynamics", "continuous", "--steps", "50000"], [])):
+        assert main(["sweep", "--slack", "0", *extra, "--out", str(tmp_path / str(i))]) == 0
+    assert seen == [DEFAULT_STEPS["continuous"], 50000, DEFAULT_STEPS["grid"]] \
+        == [4_000_000, 50000, 1_000_000]
 
 
 @pytest.fixture(scope="module")

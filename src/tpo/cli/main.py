@@ -22,7 +22,7 @@ from tpo.algo.config import CONSTRAINTS, TPOConfig
 from tpo.cli.options import UsageError, add_fields, read_fields
 from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
 from tpo.errors import TPOError
-from tpo.experiments.runspec import ACTION_KINDS, RunSpec, policy
+from tpo.experiments.runspec import ACTION_KINDS, DEFAULT_STEPS, RunSpec, policy
 from tpo.graph import ObjectiveGraph
 from tpo.locking import exclusive
 from tpo.tabular import LARSolution, solve_lar
@@ -428,6 +428,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise UsageError(f"--exact-only trains nothing: drop --{given[0].replace('_', '-')}")
     if args.action and args.dynamics != "continuous":
         raise UsageError("--action is an option of --dynamics continuous")
+    budget.setdefault("steps", DEFAULT_STEPS[args.dynamics])
     spec = SweepSpec(map=args.map, dag=args.dag, dynamics=args.dynamics,
                      action=args.action or SweepSpec.action, xs=tuple(parse_slack(args.slack)),
                      edge_slack=tuple(v.strip() for v in args.edge_slack.split(","))
@@ -608,7 +609,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact-only", action="store_true",
                    help="LAR's curve alone (seconds), no training")
     p.add_argument("--seeds", type=int, help="seeds per slack value (default 5)")
-    p.add_argument("--steps", type=int, help="env steps per run (default 1,000,000)")
+    p.add_argument("--steps", type=int, help="env steps per run (default 1,000,000; "
+                                              "with --dynamics continuous 4,000,000)")
     p.add_argument("--slacks-per-unit", type=int,
                    help="slack values per unit of work (one compiled program of these x "
                         "every seed; default 1)")

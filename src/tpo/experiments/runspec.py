@@ -21,6 +21,12 @@ DYNAMICS = ("grid", "continuous")
 ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: no JAX here)
 
 
+#: a run's budget (``steps``) when none is given, by dynamics: the continuous robot
+#: moves half a cell a step, and its zero-slack phases need twice the grid's steps a
+#: phase to trace the reference's path (docs/notes/tpo-learning.md, session 17)
+DEFAULT_STEPS = {"grid": 1_000_000, "continuous": 4_000_000}
+
+
 def policy(dynamics: str, action: str) -> str:
     """The kind of the robot's policy, whose defaults it starts from
     (:meth:`TPOConfig.defaults`): discretized for velocity actions in continuous
@@ -46,8 +52,8 @@ class RunSpec:
     """local slack: one value for every edge, or one per edge (0,100)"""
     seed: int = 0
     """PRNG seed of the parameters, the run and a Gymnasium env's resets"""
-    steps: int = 1_000_000
-    """environment steps in all"""
+    steps: int = DEFAULT_STEPS["grid"]
+    """environment steps in all (default 1,000,000; with continuous dynamics 4,000,000)"""
     dynamics: str = field(default="grid", metadata={"choices": DYNAMICS})
     """grid (cell moves) or continuous (a point robot with range sensors) on the map"""
     slip: float = 0.0
@@ -72,6 +78,8 @@ class RunSpec:
         settings of a run that tpo wrote (:meth:`TPOConfig.from_saved`)."""
         settings = dict(settings)
         defaults = {f.name: f.default for f in fields(cls) if f.name != "config"}
+        if settings.get("dynamics") == "continuous":
+            defaults["steps"] = DEFAULT_STEPS["continuous"]
         if saved and settings.get("dynamics") == "continuous":
             defaults["observation"] = "coords"  # what a continuous run saved before it meant
         run = {name: settings.pop(name, default) for name, default in defaults.items()}

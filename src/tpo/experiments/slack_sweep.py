@@ -37,7 +37,7 @@ from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Tracker, Unit, run_units
 from tpo.experiments.paper import CONTINUOUS_OBSERVATION
 from tpo.experiments.report import CSV_FIELDS, merge_records, record_rows, slack_table
-from tpo.experiments.runspec import ACTION_KINDS, DYNAMICS
+from tpo.experiments.runspec import ACTION_KINDS, DEFAULT_STEPS, DYNAMICS
 from tpo.graph import ObjectiveGraph
 from tpo.locking import LOCK_FILE
 from tpo.tabular import VERDICTS, Judge, solve_lar
@@ -65,7 +65,7 @@ class SweepSpec:
     xs: tuple[float, ...] = (0.0, 1.0, 2.0, 5.0, 10.0, 100.0)
     edge_slack: tuple[str, ...] = ()  # per edge: SWEPT or a fixed slack; () = every edge swept
     seeds: int = 5
-    steps: int = 1_000_000
+    steps: int = DEFAULT_STEPS["grid"]  # tpo sweep --dynamics continuous: DEFAULT_STEPS[...]
     slacks_per_unit: int = 1
     config: TPOConfig = field(default_factory=TPOConfig)
 
