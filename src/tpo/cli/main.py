@@ -609,8 +609,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact-only", action="store_true",
                    help="LAR's curve alone (seconds), no training")
     p.add_argument("--seeds", type=int, help="seeds per slack value (default 5)")
-    p.add_argument("--steps", type=int, help="env steps per run (default 1,000,000; "
-                                              "with --dynamics continuous 4,000,000)")
+    p.add_argument("--steps", type=int,
+                   help=f"env steps per run (default {DEFAULT_STEPS['grid']:,}; with "
+                        f"--dynamics continuous {DEFAULT_STEPS['continuous']:,})")
     p.add_argument("--slacks-per-unit", type=int,
                    help="slack values per unit of work (one compiled program of these x "
                         "every seed; default 1)")

@@ -80,8 +80,8 @@ class RunSpec:
         defaults = {f.name: f.default for f in fields(cls) if f.name != "config"}
         if settings.get("dynamics") == "continuous":
             defaults["steps"] = DEFAULT_STEPS["continuous"]
-        if saved and settings.get("dynamics") == "continuous":
-            defaults["observation"] = "coords"  # what a continuous run saved before it meant
+            if saved:
+                defaults["observation"] = "coords"  # what a continuous run saved before it meant
         run = {name: settings.pop(name, default) for name, default in defaults.items()}
         slack = run["slack"]
         slack = [slack] if isinstance(slack, int | float) else slack
