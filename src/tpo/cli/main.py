@@ -122,9 +122,9 @@ def solve_continuous(args: argparse.Namespace) -> int:
     at ``--resolution`` and at twice it, the difference being its discretisation
     error."""
     from tpo.envs import ContinuousNav
-    from tpo.envs.continuous_model import continuous_model
+    from tpo.envs.continuous_model import RESOLUTION, continuous_model
 
-    resolution = args.resolution or 4
+    resolution = args.resolution or RESOLUTION
     if resolution < 2 or resolution % 2:
         raise UsageError(f"--resolution must be an even number >= 2, got {resolution}")
     navmap = load_map(args.map)
@@ -536,7 +536,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continuous: the action kind (default velocity)")
     p.add_argument("--resolution", type=int,
                    help="continuous: lattice points per cell along each axis, even "
-                        "(default 4)")
+                        "(default 8)")
     p.add_argument("--relax", action="store_true",
                    help="relax infeasible states instead of failing")
     p.add_argument("--json", action="store_true", help="print one JSON object")

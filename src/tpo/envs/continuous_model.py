@@ -36,6 +36,12 @@ from tpo.errors import MapError
 from tpo.tabular import TabularTMDP
 
 SNAP = 1e-4  # lattice coordinates this close to an integer are on the lattice
+# The default lattice points per cell. 8, not 4: on benchmarks/maps/hall.toml, M>A>G at
+# slack 0 gives avoid -8.83 at 4, -7.27 at 8 and -7.20 at 16, and a noise-free
+# rollout in the env itself, greedy on the 8-lattice's interpolated values, gets
+# -7.22 (monitor 72.5 against 72.95): the 4-lattice misjudged it by 1.6, more than
+# the verdict's tolerance (docs/notes/tpo-learning.md, session 18).
+RESOLUTION = 8
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,7 +93,7 @@ def reference_actions(env: ContinuousNav, n_headings: int = 16) -> np.ndarray:
     return np.concatenate([headings(n_headings), np.zeros((1, 2), np.float32)])
 
 
-def continuous_model(env: ContinuousNav, gamma: float = 0.99, resolution: int = 4,
+def continuous_model(env: ContinuousNav, gamma: float = 0.99, resolution: int = RESOLUTION,
                      n_headings: int = 16) -> ContinuousModel:
     """The reference TMDP of ``env`` (its noise left out) on a lattice of
     ``resolution`` points per cell along each axis."""
