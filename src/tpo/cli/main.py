@@ -460,7 +460,8 @@ def _learned_sweep(args: argparse.Namespace, out: Path, spec, engine):
         print(f"exact curve written to {out / 'exact.csv'}; training "
               f"{sum(runs.values())} runs", flush=True)
         bars.append(tqdm(total=sum(runs.values()), unit="run", disable=args.quiet,
-                         desc="sweep"))
+                         desc="sweep", bar_format="{desc}: {percentage:3.0f}%|{bar}| "
+                         "{n:.1f}/{total_fmt} runs [{elapsed}<{remaining}, {rate_fmt}]"))
 
     def progress(tracker) -> None:
         bars[0].update(sum(runs[n] * f for n, f in tracker.fractions.items()) - bars[0].n)
