@@ -4,6 +4,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -214,6 +215,21 @@ def test_solve_continuous_gives_the_reference_and_its_discretisation_error():
     # the verdict's 5 % tolerance, 2.0).
     assert -41 < data["policy_values"]["goal"] < -38
     assert max(data["discretisation_error"].values()) < 0.2
+    assert data["unresolved"] == []
+
+
+def test_solve_continuous_names_what_its_lattice_does_not_resolve():
+    """hall's M>A>G at slack 0 at 4 points a cell: avoid -8.83 against -7.27 at 8, more
+    than a continuous verdict's 0.5 (tests/test_continuous_model.py)."""
+    hall = str(Path(__file__).parents[1] / "benchmarks/maps/hall.toml")
+    args = ("solve", "--map", hall, "--dynamics", "continuous", "--dag", "M>A>G", "--slack",
+            "0", "--resolution", "4")
+    out = run(*args, "--json")
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["unresolved"] == ["avoid"]
+    text = run(*args).stdout.splitlines()
+    assert text[-1].startswith("not resolved: avoid differs by more than") and \
+        text[-1].endswith("solve at --resolution 8")
 
 
 @pytest.mark.parametrize("args, message", [

@@ -121,8 +121,10 @@ def solve_continuous(args: argparse.Namespace) -> int:
     """The continuous env's finite reference (:mod:`tpo.envs.continuous_model`) solved
     at ``--resolution`` and at twice it, the difference being its discretisation
     error."""
+    from tpo.algo.evaluate import CONTINUOUS_TOL
     from tpo.envs import ContinuousNav
     from tpo.envs.continuous_model import RESOLUTION, continuous_model
+    from tpo.tabular.judge import tolerance
 
     resolution = args.resolution or RESOLUTION
     if resolution < 2 or resolution % 2:
@@ -137,12 +139,14 @@ def solve_continuous(args: argparse.Namespace) -> int:
         sol = solve_lar(ref.model, graph, relax=args.relax)
         solved.append((ref, sol))
     (ref, sol), (_, fine) = solved
-    error = {n: abs(v - fine.start_policy_values()[n])
-             for n, v in sol.start_policy_values().items()}
+    finer = fine.start_policy_values()
+    error = {n: abs(v - finer[n]) for n, v in sol.start_policy_values().items()}
+    # Objectives the lattice does not resolve within a continuous verdict's tolerance.
+    unresolved = [n for n, e in error.items() if e > tolerance(finer[n], CONTINUOUS_TOL)]
     summary = {"map": navmap.name, "dynamics": "continuous", "action": env.action,
                "resolution": resolution, **sol.summary(), "path": ref.category(sol.policy),
-               "discretisation_error": error,
-               "policy_values_at_double_resolution": fine.start_policy_values()}
+               "discretisation_error": error, "policy_values_at_double_resolution": finer,
+               "unresolved": unresolved}
     if args.json:
         print(json.dumps(summary))
         return 0
@@ -153,6 +157,10 @@ def solve_continuous(args: argparse.Namespace) -> int:
                       for n, v in fine.start_policy_values().items()))
     print("path (more likely than not): " + "; ".join(
         f"{k.replace('_', ' ')}: {'yes' if v else 'no'}" for k, v in summary["path"].items()))
+    if unresolved:
+        print(f"not resolved: {', '.join(unresolved)} differs by more than a continuous "
+              f"verdict's tolerance ({CONTINUOUS_TOL:.0%} or 0.5); solve at --resolution "
+              f"{2 * resolution}")
     return 0
 
 
