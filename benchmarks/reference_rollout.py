@@ -28,21 +28,17 @@ import numpy as np
 from tpo.algo.evaluate import noise_free
 from tpo.envs import OBJECTIVES, ContinuousNav, load_map
 from tpo.envs.continuous import ContinuousState
-from tpo.envs.continuous_model import _bilinear, continuous_model, path_category
+from tpo.envs.continuous_model import ContinuousModel, continuous_model, path_category
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar
 
 
-def rollout(env: ContinuousNav, ref, values: np.ndarray, order: list[int],
+def rollout(env: ContinuousNav, ref: ContinuousModel, values: np.ndarray, order: list[int],
             allowance: list[float], gamma: float) -> tuple[np.ndarray, np.ndarray]:
     """Discounted returns ``[3]`` and positions ``[T + 1, 2]`` of the lookahead
-    controller; ``values [k, S]`` are the chain's ``V*`` in ``order``, ``allowance
-    [k - 1]`` what each but the last may give up at a step."""
-    params = env.params.replace(noise=jnp.float32(0.0))
-    n, (h, w) = ref.resolution, env.navmap.shape
-    index = np.full((h * n, w * n), -1)
-    lattice = np.round(ref.points * n).astype(int)
-    index[lattice[:, 0], lattice[:, 1]] = np.arange(len(lattice))
+    controller on ``env`` (noise-free); ``values [k, S]`` are the chain's ``V*`` in
+    ``order``, ``allowance [k - 1]`` what each but the last may give up at a step."""
+    params = env.params
     actions = jnp.asarray(ref.actions)
 
     @jax.jit
@@ -56,7 +52,7 @@ def rollout(env: ContinuousNav, ref, values: np.ndarray, order: list[int],
     returns, discount, path = np.zeros(len(OBJECTIVES)), 1.0, [np.asarray(pos)]
     for _ in range(int(params.max_steps)):
         nxt, reward, term = map(np.asarray, look(pos))
-        succ, prob = _bilinear(nxt.astype(np.float64) * n, index)
+        succ, prob = ref.around(nxt)
         ahead = np.where(term[None], 0.0, (values[:, succ] * prob[None]).sum(-1))  # [k, A]
         q = reward[:, order].T + gamma * ahead
         keep = np.ones(len(actions), bool)
@@ -83,8 +79,7 @@ def main() -> None:
     p.add_argument("--gamma", type=float, default=0.99)
     args = p.parse_args()
     env = ContinuousNav(load_map(args.map), action=args.action)
-    slack = args.slack * (args.dag.count(">") if len(args.slack) == 1 else 1)
-    graph = ObjectiveGraph.parse(args.dag, slack, objectives=OBJECTIVES, gamma=args.gamma)
+    graph = ObjectiveGraph.parse(args.dag, args.slack, objectives=OBJECTIVES, gamma=args.gamma)
     chain = list(graph.order)
     if any(len(graph.ancestors(v)) != i for i, v in enumerate(chain)):
         raise SystemExit(f"{args.dag}: a chain DAG is needed")

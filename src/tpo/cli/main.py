@@ -154,7 +154,7 @@ def solve_continuous(args: argparse.Namespace) -> int:
     print(f"continuous {env.action} dynamics on a lattice of {resolution}x{resolution} points "
           f"per cell; at {2 * resolution}x{2 * resolution}: "
           + ", ".join(f"{n} {v:.3f} (differs by {error[n]:.3f})"
-                      for n, v in fine.start_policy_values().items()))
+                      for n, v in finer.items()))
     print("path (more likely than not): " + "; ".join(
         f"{k.replace('_', ' ')}: {'yes' if v else 'no'}" for k, v in summary["path"].items()))
     if unresolved:

@@ -55,6 +55,8 @@ class ContinuousModel:
         actions: the env action of every reference action: int ``[A]`` headings or
             float ``[A, 2]`` velocities.
         resolution: lattice points per cell along each axis.
+        index: int ``[H * resolution, W * resolution]``, the state at every lattice
+            coordinate (-1 in walls).
     """
 
     env: ContinuousNav
@@ -62,6 +64,12 @@ class ContinuousModel:
     points: np.ndarray
     actions: np.ndarray
     resolution: int
+    index: np.ndarray
+
+    def around(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The states ``[..., 4]`` around positions ``[..., 2]`` (in free cells) and
+        their bilinear weights: how the reference spreads a point off its lattice."""
+        return _bilinear(np.asarray(positions, np.float64) * self.resolution, self.index)
 
     def category(self, policy: np.ndarray, steps: int | None = None) -> dict[str, bool]:
         """What the reference ``policy [S]`` does from the start, as
@@ -131,7 +139,7 @@ def continuous_model(env: ContinuousNav, gamma: float = 0.99, resolution: int = 
     cell = tuple(np.asarray(navmap.start) * n + n // 2)
     model = TabularTMDP(successors, probs, rewards, OBJECTIVES, gamma=gamma,
                         start=int(index[cell]), terminal=goal)
-    return ContinuousModel(env, model, points, actions, n)
+    return ContinuousModel(env, model, points, actions, n, index)
 
 
 def _floor(x: np.ndarray) -> np.ndarray:
