@@ -145,6 +145,18 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
     assert goal_phase_step(train_env, slack, -gap)[1] == pytest.approx(penalty, abs=1e-4)
 
 
+@pytest.mark.parametrize(("slack", "advantage", "penalty"), [
+    (0.0, -0.25, 0.25),  # as the paper's at zero slack where the advantage is negative
+    (0.0, 0.3, -0.3),  # but a positive one is credited, so that the critic's errors cancel
+    (1.0, -0.8, 0.1),  # above zero slack the paper's, from the slack less the margin
+    (1.0, 0.3, 0.0)])
+def test_a_telescoping_penalty_charges_the_advantage_itself_at_zero_slack(
+        small, slack, advantage, penalty):
+    train_env, _ = small
+    assert goal_phase_step(train_env, slack, advantage, telescope=True)[1] == pytest.approx(
+        penalty, abs=1e-4)
+
+
 @pytest.mark.parametrize(("update", "scale"), [(10, 0.0), (12, 0.4), (15, 1.0), (19, 1.0)])
 def test_the_multiplier_rises_over_the_warmup(small, update, scale):
     """``beta_warmup = 0.5`` with phases of 10 updates: a goal-phase transition whose
@@ -304,3 +316,28 @@ def test_one_critic_head_equals_its_column_of_all_heads():
     for column in range(3):
         np.testing.assert_allclose(critics.head(params, jnp.int32(column), obs),
                                    every[:, column], rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("constraint", ["penalty", "restriction"])
+def test_a_rollout_s_values_equal_the_critics_on_every_true_next_state(constraint):
+    """:meth:`Trainer.rollout_values` runs the critics on each observation once and
+    on a second ``s_{t+1}`` only after a truncation and at the last step (at most
+    ``(T - 1) // max_steps + 2`` a copy): its values equal the critics' on ``obs``
+    and on ``final_obs`` wherever a next value counts (``s_{t+1}`` not terminal)."""
+    env = GridNav(load_map("small"), random_start=True, max_steps=4)
+    graph = ObjectiveGraph.parse("A>M>G", 0, objectives=OBJECTIVES)
+    trainer = Trainer(env, graph, TPOConfig(num_envs=16, num_steps=32, constraint=constraint),
+                      3 * 16 * 32)
+    assert trainer.own_next == 31 // 4 + 2
+    state = trainer.init(jax.random.key(0))
+    _, rollout, _ = jax.jit(trainer.collect)(state, trainer.slack_array())
+    truncated = np.asarray(rollout.done > rollout.terminated)
+    assert truncated[:-1].sum(axis=0).min() >= 6  # every copy truncated at least 6 times
+    assert np.asarray(rollout.terminated).any()  # and some reached the goal
+    value, next_value = jax.jit(trainer.rollout_values)(state, rollout)
+    every = trainer.values(state, jnp.stack([rollout.obs, rollout.final_obs]))[..., 0]
+    # One float32 critic call on other rows: the same sums, up to their order.
+    np.testing.assert_allclose(value, every[0], rtol=0, atol=1e-5)
+    counts = np.asarray(rollout.terminated) == 0
+    np.testing.assert_allclose(np.asarray(next_value)[counts], np.asarray(every[1])[counts],
+                               rtol=0, atol=1e-5)

@@ -18,7 +18,7 @@ REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of
 #: fields added since tpo 0.2, and the value a config written before them meant: a
 #: saved model (or a run's config.toml) without the key was trained without the feature
 ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
-         "beta_warmup": 0.0}
+         "beta_warmup": 0.0, "telescope": False}
 
 
 #: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
@@ -114,6 +114,12 @@ class TPOConfig:
     beta: float | str = field(default=10.0, metadata={"metavar": "NUMBER|auto"})
     """penalty: Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a
     violation of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
+    telescope: bool = False
+    """penalty: a constraint at zero slack charges the parent's one-step advantage
+    itself, -A_w, not max(0, -A_w): the same with the parent's optimal critic (where
+    A_w <= 0), but along a path the critic's errors then telescope (they sum to its
+    errors at the path's ends) instead of each negative one being charged
+    (docs/notes/tpo-learning.md, session 19)"""
     beta_warmup: float = 0.0
     """penalty: share of every phase over which the multiplier rises linearly from 0
     to beta: a phase then explores before its constraints bind, which helps a child

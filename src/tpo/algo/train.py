@@ -139,6 +139,12 @@ class Trainer:
                                          config.action_bins)
         except ValueError as err:
             raise ConfigError(str(err)) from None
+        #: the steps per env of a rollout whose ``s_{t+1}`` gets its own critic call
+        #: (:meth:`rollout_values`): the last step and every truncation, at most one in
+        #: an env's ``max_steps``; every step of an env that declares no time limit
+        limit = getattr(env, "max_steps", None)
+        self.own_next = config.num_steps if limit is None else min(
+            config.num_steps, (config.num_steps - 1) // limit + 2)
         n_out = 1 + int(space.n) if self.restricts else 1
         self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation)
         n_phases = self.problem.n_phases
@@ -182,8 +188,10 @@ class Trainer:
             [int(b) for b in self.phase_start[1:-1]])
 
     # ------------------------------------------------------------------ init
+    @partial(jax.jit, static_argnums=0)
     def init_params(self, key: jax.Array) -> dict:
-        """Network parameters of one seed (outside any vmap: docs/design.md §5)."""
+        """Network parameters of one seed (outside any vmap: docs/design.md §5; one
+        compiled program, not one per initialiser's operation)."""
         return init_params(key, self.actor, self.critics, self.env.obs_shape)
 
     def init(self, key: jax.Array, params: dict | None = None,
@@ -376,7 +384,7 @@ class Trainer:
         cfg, prob = self.config, self.problem
         pick = jax.nn.one_hot(phase, prob.n_phases)
         rewards, value, next_value, adv_all, penalty = self.constraint_terms(
-            state, slack, rollout.obs, rollout.final_obs, rollout.reward, rollout.terminated,
+            slack, *self.rollout_values(state, rollout), rollout.reward, rollout.terminated,
             phase)
         reward, v, next_v = rewards @ pick, value @ pick, next_value @ pick
         q_target = adv_all if self.restricts else None
@@ -396,18 +404,36 @@ class Trainer:
         batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
         return batch, penalty, state.value_norm.update(target, pick)
 
-    def constraint_terms(self, state: TrainState, slack: jax.Array, obs: jax.Array,
-                         next_obs: jax.Array, reward: jax.Array, terminated: jax.Array,
-                         phase: jax.Array) -> tuple[jax.Array, ...]:
-        """Of transitions ``[..., D]`` (any leading axes): every phase's reward, value
-        and next value, the one-step advantages against the frozen critics (each
-        ``[..., P]``), and ``phase``'s penalty ``[...]`` (Eq. 10's sum of violations,
-        each counted from its slack less its ``margin``; zero in the restriction form,
-        where the admissible actions alone keep the slacks)."""
+    def rollout_values(self, state: TrainState, rollout: Rollout
+                       ) -> tuple[jax.Array, jax.Array]:
+        """Every head's ``V(s_t)`` and ``V(s_{t+1})`` over a rollout, ``[T, E, P]`` each,
+        in one batched critic call. ``s_{t+1}`` is the next step's observation unless
+        the episode ended at ``t``; its value is then needed only after a truncation
+        (a terminal state does not bootstrap) or at the last step, so only the first
+        ``own_next`` of those steps per env are run through the critics again: half
+        the rows of running ``final_obs`` too."""
+        obs, final_obs = rollout.obs, rollout.final_obs
+        steps, envs = obs.shape[:2]
+        own = jnp.where((rollout.done > rollout.terminated).at[-1].set(True), 0, 1)
+        slots = jnp.argsort(own, axis=0, stable=True)[:self.own_next]  # [K, E], needed first
+        extra = jnp.take_along_axis(
+            final_obs, slots.reshape(*slots.shape, *[1] * (final_obs.ndim - 2)), axis=0)
+        out = self.values(state, jnp.concatenate([obs, extra]))[..., 0]  # [T + K, E, P]
+        value = out[:steps]
+        next_value = jnp.concatenate([value[1:], value[-1:]]).at[
+            slots, jnp.arange(envs)].set(out[steps:])
+        return value, next_value
+
+    def constraint_terms(self, slack: jax.Array, value: jax.Array, next_value: jax.Array,
+                         reward: jax.Array, terminated: jax.Array, phase: jax.Array
+                         ) -> tuple[jax.Array, ...]:
+        """Of transitions (any leading axes) whose every head's values and next values
+        are ``value`` and ``next_value`` ``[..., P]``: every phase's reward, the
+        one-step advantages against the frozen critics (``[..., P]``, returned beside
+        the rewards and the values), and ``phase``'s penalty ``[...]`` (Eq. 10's sum of
+        violations, each counted from its slack less its ``margin``; zero in the
+        restriction form, where the admissible actions alone keep the slacks)."""
         prob = self.problem
-        # The critics see every step at once (one batched call, not one per step).
-        out = self.values(state, jnp.stack([obs, next_obs]))[..., 0]
-        value, next_value = out[0], out[1]
         rewards = reward[..., jnp.asarray(prob.reward)]
         adv_all = ancestral_advantages(rewards, value, next_value, terminated,
                                        self.config.gamma)
@@ -416,8 +442,10 @@ class Trainer:
         completion = jnp.asarray(prob.slack_index == len(prob.graph.edges), jnp.float32)
         slacks = prob.constraint_slacks(slack)
         margin = jnp.minimum(jnp.asarray(self.margin), slacks / 2)
-        c = violations(adv_all, jnp.asarray(prob.head),
-                       slacks - margin + completion * jnp.asarray(self.tolerance))
+        threshold = slacks - margin + completion * jnp.asarray(self.tolerance)
+        c = violations(adv_all, jnp.asarray(prob.head), threshold)
+        if self.config.telescope:  # at zero slack the parent's advantage itself
+            c = jnp.where(threshold > 0, c, -adv_all[..., jnp.asarray(prob.head)])
         penalty = c @ jnp.asarray(prob.active)[phase]  # zeros when no edges
         return rewards, value, next_value, adv_all, penalty
 
@@ -550,8 +578,10 @@ class Trainer:
         """A candidate's mean discounted return of every phase's objective ``[P]`` and
         mean discounted penalty of the leaf's constraints ``[]`` over its episodes."""
         leaf = jnp.int32(len(self.problem.graph.order) - 1)
+        # The critics see every step at once (one batched call, not one per step).
+        value, next_value = self.values(state, jnp.stack([ep.obs, ep.next_obs]))[..., 0]
         rewards, *_, penalty = self.constraint_terms(
-            state, slack, ep.obs, ep.next_obs, ep.reward, ep.terminated, leaf)
+            slack, value, next_value, ep.reward, ep.terminated, leaf)
         gamma = self.config.gamma
         return (discounted(rewards, ep.alive, gamma).mean(0),
                 discounted(penalty, ep.alive, gamma).mean(0))

@@ -28,6 +28,12 @@ class JaxEnv:
     objectives = OBJECTIVES
     reward_low = np.array([-1.0, -2.0, -1.0], np.float32)  # per-step bounds of nav_reward
     reward_high = np.array([-1.0, 0.0, 1.0], np.float32)
+    params: Any  # the env's parameters, with ``max_steps``
+
+    @property
+    def max_steps(self) -> int:
+        """The time limit: an episode is truncated after this many steps."""
+        return int(self.params.max_steps)
 
     @classmethod
     def step(cls, key: jax.Array, state: Any, action: jax.Array, params: Any

@@ -30,6 +30,7 @@ import os
 import signal
 import socket
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
@@ -202,13 +203,16 @@ def _report(name: str, fraction: float) -> None:
     _events.put(("progress", name, fraction))
 
 
-def _init_worker(queue: Any, parent: int) -> None:
-    """A local worker: one XLA thread; events to ``queue``; on Linux, killed with its
-    parent (a SIGKILLed driver must not leave workers writing into a directory that
-    its restart resumes)."""
+def _init_worker(queue: Any, parent: int, cache: str) -> None:
+    """A local worker: one XLA thread; compiled programs shared with the other workers
+    through the folder ``cache`` (JAX's persistent cache, unless the caller names
+    one: a panel's units compile the same program); events to ``queue``; on Linux,
+    killed with its parent (a SIGKILLed driver must not leave workers writing into a
+    directory that its restart resumes)."""
     global _events
     _events = queue
     os.environ["XLA_FLAGS"] = single_thread_flags()
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", cache)
     # Ctrl-C reaches the whole process group: the driver says "interrupted"; a worker
     # ends without a traceback of its own.
     signal.signal(signal.SIGINT, lambda *_: os._exit(130))
@@ -246,9 +250,9 @@ class LocalBackend(Backend):
                     return
                 (tracker.begin if kind == "begin" else tracker.progress)(name, value)
 
-        with ProcessPoolExecutor(max_workers=min(self.workers, len(units)), mp_context=ctx,
-                                 initializer=_init_worker,
-                                 initargs=(queue, os.getpid())) as pool:
+        with tempfile.TemporaryDirectory(prefix="tpo-xla-") as cache, ProcessPoolExecutor(
+                max_workers=min(self.workers, len(units)), mp_context=ctx,
+                initializer=_init_worker, initargs=(queue, os.getpid(), cache)) as pool:
             pending = {pool.submit(_run_local, u, folder / f"{u.name}.ckpt",
                                    self.every): u.name for u in units}
             while pending:

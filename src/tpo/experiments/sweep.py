@@ -107,8 +107,7 @@ def run_sweep(env: GridNav | ContinuousNav, dag: str | ObjectiveGraph,
     graphs = [graph.with_slack(s.tolist()) for s in slack_arr]  # checks every slack vector
     trainer = Trainer(env, graph, config, total_timesteps)
     per_seed = [trainer.init(jax.random.key(s)) for s in seeds]  # outside vmap: docs/design.md §5
-    states = jax.tree.map(lambda *x: jnp.stack(x), *per_seed)
-    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(slack_arr), *x.shape)), states)
+    states = _stacked(per_seed, len(slack_arr))
     length = min(chunk_updates, trainer.num_updates)
     over_seeds = jax.vmap(lambda st, sl, n: trainer.run_chunk(st, sl, n, length)[0],
                           in_axes=(0, None, None))
@@ -136,6 +135,14 @@ def run_sweep(env: GridNav | ContinuousNav, dag: str | ObjectiveGraph,
     evaluate = evaluate_sweep if hasattr(env, "tabular") else evaluate_reference_sweep
     return evaluate(trainer, actings, env, graphs, np.asarray(slacks, np.float64),
                     tuple(seeds), episodes)
+
+
+@partial(jax.jit, static_argnums=1)
+def _stacked(per_seed: list[TrainState], slacks: int) -> TrainState:
+    """The seeds' states stacked ``[N, ...]``, then once for each slack value: ``[S, N,
+    ...]`` (one program, not one eager operation per leaf)."""
+    states = jax.tree.map(lambda *x: jnp.stack(x), *per_seed)
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (slacks, *x.shape)), states)
 
 
 class Checkpoint(Protocol):
