@@ -34,6 +34,11 @@ GAUSSIAN_DEFAULTS = {"ent_coef": 0.0, "ent_coef_end": 0.0, "learning_rate": 3e-4
 POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
                    "discretized": {"action_bins": 5}}
 
+#: what a learner in a continuous state space (the continuous navigation robot) sets
+#: beside its policy's defaults: the telescoping penalty at zero slack, whose critic
+#: errors cancel along a path (docs/notes/tpo-learning.md, session 19)
+CONTINUOUS_DEFAULTS = {"telescope": True}
+
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
 
@@ -222,10 +227,13 @@ class TPOConfig:
         return tomli_w.dumps(self.to_dict())
 
     @classmethod
-    def defaults(cls, policy: str = "categorical", **values: Any) -> TPOConfig:
+    def defaults(cls, policy: str = "categorical", continuous: bool = False,
+                 **values: Any) -> TPOConfig:
         """The defaults for a ``policy`` of :data:`POLICY_DEFAULTS` (categorical,
-        gaussian or discretized), with ``values`` on top."""
-        return cls.from_dict({**POLICY_DEFAULTS[policy], **values})
+        gaussian or discretized), in a ``continuous`` state space also
+        :data:`CONTINUOUS_DEFAULTS`, with ``values`` on top."""
+        extra = CONTINUOUS_DEFAULTS if continuous else {}
+        return cls.from_dict({**POLICY_DEFAULTS[policy], **extra, **values})
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TPOConfig:

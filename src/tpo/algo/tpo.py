@@ -46,7 +46,8 @@ class TPO:
         slack: one slack or one per edge (ignored when ``graph`` is a graph).
         config: hyperparameters (default :meth:`TPOConfig.defaults` for the env's
             action space: for a ``Box``, the discretized policy's if its bounds are
-            finite, else a Gaussian's).
+            finite, else a Gaussian's; for :class:`ContinuousNav`, the continuous
+            state's too).
         seed: PRNG seed of the parameters, the run and a Gymnasium env's resets.
         objectives: names of a Gymnasium env's reward components, in order.
     """
@@ -57,10 +58,13 @@ class TPO:
                  objectives: Sequence[str] | None = None) -> None:
         self.config = config or TPOConfig()
         self.env = env = make_env(env, objectives, self.config.num_envs)
-        if config is None and isinstance(env.action_space, gym.spaces.Box):
-            bounded = np.all(np.isfinite(env.action_space.low)) and np.all(
-                np.isfinite(env.action_space.high))
-            self.config = TPOConfig.defaults("discretized" if bounded else "gaussian")
+        if config is None:
+            kind = "categorical"
+            if isinstance(env.action_space, gym.spaces.Box):
+                bounded = np.all(np.isfinite(env.action_space.low)) and np.all(
+                    np.isfinite(env.action_space.high))
+                kind = "discretized" if bounded else "gaussian"
+            self.config = TPOConfig.defaults(kind, continuous=isinstance(env, ContinuousNav))
         if self.host and env.num_envs != self.config.num_envs:  # a vector env's copies
             self.config = dataclasses.replace(self.config, num_envs=env.num_envs)
         self.eval_env = None if self.host else from_spec(env.to_spec(), evaluation=True)

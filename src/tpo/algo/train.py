@@ -408,10 +408,10 @@ class Trainer:
                        ) -> tuple[jax.Array, jax.Array]:
         """Every head's ``V(s_t)`` and ``V(s_{t+1})`` over a rollout, ``[T, E, P]`` each,
         in one batched critic call. ``s_{t+1}`` is the next step's observation unless
-        the episode ended at ``t``; its value is then needed only after a truncation
-        (a terminal state does not bootstrap) or at the last step, so only the first
-        ``own_next`` of those steps per env are run through the critics again: half
-        the rows of running ``final_obs`` too."""
+        the episode ended at ``t``; the true ``final_obs`` is then needed only after a
+        truncation (a terminal state does not bootstrap) or at the last step, which
+        ``own_next`` slots per env hold, so the critics run on ``T + own_next`` rows
+        a copy instead of ``2 T``."""
         obs, final_obs = rollout.obs, rollout.final_obs
         steps, envs = obs.shape[:2]
         own = jnp.where((rollout.done > rollout.terminated).at[-1].set(True), 0, 1)

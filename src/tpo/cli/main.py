@@ -22,7 +22,7 @@ from tpo.algo.config import CONSTRAINTS, TPOConfig
 from tpo.cli.options import UsageError, add_fields, read_fields
 from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
 from tpo.errors import TPOError
-from tpo.experiments.runspec import ACTION_KINDS, DEFAULT_STEPS, RunSpec, policy
+from tpo.experiments.runspec import ACTION_KINDS, DEFAULT_STEPS, RunSpec, learner_defaults
 from tpo.graph import ObjectiveGraph
 from tpo.locking import exclusive
 from tpo.tabular import LARSolution, solve_lar
@@ -440,8 +440,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     spec = SweepSpec(map=args.map, dag=args.dag, dynamics=args.dynamics,
                      action=args.action or SweepSpec.action, xs=tuple(parse_slack(args.slack)),
                      edge_slack=tuple(v.strip() for v in args.edge_slack.split(","))
-                     if args.edge_slack else (), config=TPOConfig.defaults(
-                         policy(args.dynamics, args.action or SweepSpec.action), **config),
+                     if args.edge_slack else (), config=learner_defaults(
+                         args.dynamics, args.action or SweepSpec.action, **config),
                      **budget)
     spec.check(learned=not args.exact_only)  # before anything is made
     engine = None if args.exact_only else backend_of(args)

@@ -93,11 +93,10 @@ def panel_problem(form: str, panel: Panel, xs: list[float], settings: Settings
 def learner(form: str, settings: Settings, action: str = "") -> TPOConfig:
     """The config every run of ``form`` trains with (``action``: the continuous
     robot's action kind, whose policy's defaults it takes; "" on the grid)."""
-    from tpo.algo import TPOConfig
-    from tpo.experiments.runspec import policy
+    from tpo.experiments.runspec import learner_defaults
 
-    return TPOConfig.defaults(policy("continuous" if action else "grid", action),
-                              constraint=form, completion=settings.completion)
+    return learner_defaults("continuous" if action else "grid", action, constraint=form,
+                            completion=settings.completion)
 
 
 def check_settings(settings: Settings) -> None:

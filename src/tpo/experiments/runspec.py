@@ -27,11 +27,13 @@ ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: n
 DEFAULT_STEPS = {"grid": 1_000_000, "continuous": 4_000_000}
 
 
-def policy(dynamics: str, action: str) -> str:
-    """The kind of the robot's policy, whose defaults it starts from
-    (:meth:`TPOConfig.defaults`): discretized for velocity actions in continuous
-    space, else categorical."""
-    return "discretized" if dynamics == "continuous" and action == "velocity" else "categorical"
+def learner_defaults(dynamics: str, action: str, **values: Any) -> TPOConfig:
+    """The config the navigation robot's learner starts from, ``values`` on top
+    (:meth:`TPOConfig.defaults`): the discretized policy's for velocity actions in
+    continuous space, else the categorical one's; in continuous space the
+    continuous state's."""
+    kind = "discretized" if dynamics == "continuous" and action == "velocity" else "categorical"
+    return TPOConfig.defaults(kind, continuous=dynamics == "continuous", **values)
 
 
 class RunError(TPOError):
@@ -124,8 +126,8 @@ class RunSpec:
                    observation=str(run["observation"]), action=run["action"],
                    noise=float(run["noise"]), env=str(run["env"]),
                    objectives=tuple(objectives),
-                   config=TPOConfig.from_saved(settings) if saved else TPOConfig.defaults(
-                       policy(run["dynamics"], run["action"]), **settings))
+                   config=TPOConfig.from_saved(settings) if saved else learner_defaults(
+                       run["dynamics"], run["action"], **settings))
 
     @classmethod
     def from_toml(cls, path: str | Path, saved: bool = False) -> RunSpec:
