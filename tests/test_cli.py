@@ -278,9 +278,9 @@ def test_a_continuous_run_takes_the_continuous_budget_unless_told():
 
 def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     """Velocity actions take a factorised categorical of 5 values per dimension with a
-    categorical's other defaults unless told otherwise; heading actions and the grid
-    keep the categorical defaults; a Gaussian keeps its own; a saved run keeps its
-    own config."""
+    categorical's other defaults unless told otherwise; heading actions keep the
+    categorical defaults; both take the continuous state's telescoping penalty, the
+    grid not; a Gaussian keeps its own; a saved run keeps its own config."""
     from tpo.algo import TPO, TPOConfig
     from tpo.algo.config import GAUSSIAN_DEFAULTS
     from tpo.envs import ContinuousNav, load_map
@@ -291,18 +291,23 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     gaussian = TPOConfig.defaults("gaussian")
     assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
     assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
-    assert RunSpec.from_settings({"dynamics": "continuous"}).config == binned
+    robot = TPOConfig(action_bins=5, telescope=True)
+    assert RunSpec.from_settings({"dynamics": "continuous"}).config == robot
     assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \
-        == TPOConfig() == RunSpec.from_settings({}).config
+        == TPOConfig(telescope=True)
+    assert RunSpec.from_settings({}).config == TPOConfig()
     mine = RunSpec.from_settings({"dynamics": "continuous", "action_bins": 3}).config
     assert (mine.action_bins, mine.ent_coef) == (3, TPOConfig().ent_coef)
     saved = RunSpec.from_settings({"dynamics": "continuous", **TPOConfig().to_dict()},
                                   saved=True)
     assert saved.config == TPOConfig()
+    # A saved config from before telescope meant the paper's penalty, in any space.
+    assert not RunSpec.from_settings({"dynamics": "continuous"}, saved=True).config.telescope
     # A saved config from before action_bins meant a Gaussian.
     old = {k: v for k, v in binned.to_dict().items() if k != "action_bins"}
     assert TPOConfig.from_saved(old).action_bins == 0
     navmap = load_map("small")
-    assert TPO(ContinuousNav(navmap), "goal").config == binned
-    assert TPO(ContinuousNav(navmap, action="heading"), "goal").config == TPOConfig()
+    assert TPO(ContinuousNav(navmap), "goal").config == robot
+    assert TPO(ContinuousNav(navmap, action="heading"), "goal").config \
+        == TPOConfig(telescope=True)
     assert TPO(ContinuousNav(navmap), "goal", config=TPOConfig()).config == TPOConfig()

@@ -9,7 +9,6 @@ import pytest
 
 from tpo.envs import load_map, parse_map
 from tpo.envs.continuous import ContinuousNav, headings
-from tpo.envs.grid import GridNav
 from tpo.errors import MapError
 from tpo.sensing import blocked, cell_features, pad_walls
 
@@ -176,17 +175,3 @@ def test_what_was_saved_before_the_factored_observation_reads_as_coords():
     assert not _observer("continuous", arrays).factored
     assert _observer("continuous", {**arrays, "observer/factored": np.asarray(True)}).factored
 
-
-def test_the_continuous_robot_learns_with_the_telescoping_penalty_by_default():
-    """Both action kinds in continuous space start from the telescoping penalty, the
-    grid and a saved config that does not name it from the paper's."""
-    from tpo.algo import TPO
-    from tpo.experiments.runspec import RunSpec
-
-    for action, kind in (("velocity", 5), ("heading", 0)):
-        config = RunSpec.from_settings({"dynamics": "continuous", "action": action}).config
-        assert config.telescope and config.action_bins == kind
-    assert not RunSpec.from_settings({"dynamics": "grid"}).config.telescope
-    assert not RunSpec.from_settings({"dynamics": "continuous"}, saved=True).config.telescope
-    assert TPO(ContinuousNav(load_map("small"), action="heading"), "M>A>G").config.telescope
-    assert not TPO(GridNav(load_map("small")), "M>A>G").config.telescope
