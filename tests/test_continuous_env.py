@@ -174,4 +174,3 @@ def test_what_was_saved_before_the_factored_observation_reads_as_coords():
     arrays["observer/walls"] = np.asarray(env.navmap.walls)
     assert not _observer("continuous", arrays).factored
     assert _observer("continuous", {**arrays, "observer/factored": np.asarray(True)}).factored
-

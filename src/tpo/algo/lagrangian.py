@@ -36,14 +36,18 @@ def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax
     return rewards + gamma * (1.0 - terminated[..., None]) * next_values - values
 
 
-def violations(advantages: jax.Array, parents: jax.Array, slack: jax.Array) -> jax.Array:
+def violations(advantages: jax.Array, parents: jax.Array, slack: jax.Array,
+               telescope: bool = False) -> jax.Array:
     """``C_wv = max(0, -A_w - eta_wv)`` for every constraint (an edge ``(w, v)``, whose
     parent's advantage is column ``parents[c]``): ``[..., k] -> [..., C]`` (Prop. 1
-    with the one-step advantage standing in for ``Q_w - V_w``)."""
+    with the one-step advantage standing in for ``Q_w - V_w``). With ``telescope``,
+    ``C_wv = -A_w`` where ``eta_wv`` is 0: equal under the parent's optimal critic
+    (``A_w <= 0``), and a learned critic's errors then cancel along a path."""
     if jnp.ndim(parents) != 1 or jnp.shape(slack) != jnp.shape(parents):
         raise ValueError(f"parents {jnp.shape(parents)} and slack {jnp.shape(slack)} must "
                          "be [C] each")
-    return jnp.maximum(0.0, -advantages[..., parents] - slack)
+    c = jnp.maximum(0.0, -advantages[..., parents] - slack)
+    return jnp.where(slack > 0, c, -advantages[..., parents]) if telescope else c
 
 
 def below_best(advantages: jax.Array, allowed: jax.Array) -> jax.Array:

@@ -414,8 +414,8 @@ class Trainer:
         a copy instead of ``2 T``."""
         obs, final_obs = rollout.obs, rollout.final_obs
         steps, envs = obs.shape[:2]
-        own = jnp.where((rollout.done > rollout.terminated).at[-1].set(True), 0, 1)
-        slots = jnp.argsort(own, axis=0, stable=True)[:self.own_next]  # [K, E], needed first
+        needed = (rollout.done > rollout.terminated).at[-1].set(True)  # truncated, or last
+        slots = jnp.argsort(~needed, axis=0, stable=True)[:self.own_next]  # [K, E], needed first
         extra = jnp.take_along_axis(
             final_obs, slots.reshape(*slots.shape, *[1] * (final_obs.ndim - 2)), axis=0)
         out = self.values(state, jnp.concatenate([obs, extra]))[..., 0]  # [T + K, E, P]
@@ -442,10 +442,9 @@ class Trainer:
         completion = jnp.asarray(prob.slack_index == len(prob.graph.edges), jnp.float32)
         slacks = prob.constraint_slacks(slack)
         margin = jnp.minimum(jnp.asarray(self.margin), slacks / 2)
-        threshold = slacks - margin + completion * jnp.asarray(self.tolerance)
-        c = violations(adv_all, jnp.asarray(prob.head), threshold)
-        if self.config.telescope:  # at zero slack the parent's advantage itself
-            c = jnp.where(threshold > 0, c, -adv_all[..., jnp.asarray(prob.head)])
+        c = violations(adv_all, jnp.asarray(prob.head),
+                       slacks - margin + completion * jnp.asarray(self.tolerance),
+                       self.config.telescope)
         penalty = c @ jnp.asarray(prob.active)[phase]  # zeros when no edges
         return rewards, value, next_value, adv_all, penalty
 
