@@ -258,7 +258,7 @@ def test_schedules_restart_with_every_phase(small):
         ({"learning_rate": -1.0}, "learning_rate must be a finite number > 0"),
         ({"gamma": 1.0}, "gamma must be in [0, 1)"),
         ({"beta": -2.0}, "beta must be a finite number >= 0"),
-        ({"advantage": "eq10"}, "advantage must be one of penalized, literal"),
+        ({"advantage": "eq10"}, "advantage must be one of penalized, literal, immediate"),
         ({"hidden": (64, 0)}, "hidden must be 1 to 16 layer widths from 1 to 4096"),
         ({"hidden": (3_000_000_000,)}, "hidden must be 1 to 16 layer widths"),
         ({"anneal_lr": 1}, "anneal_lr must be true or false"),

@@ -12,7 +12,7 @@ import tomli_w
 
 from tpo.errors import TPOError
 
-ADVANTAGE_FORMS = ("penalized", "literal")
+ADVANTAGE_FORMS = ("penalized", "literal", "immediate")
 CONSTRAINTS = ("restriction", "penalty")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 #: fields added since tpo 0.2, and the value a config written before them meant: a
@@ -36,8 +36,10 @@ POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
 
 #: what a learner in a continuous state space (the continuous navigation robot) sets
 #: beside its policy's defaults: the telescoping penalty at zero slack, whose critic
-#: errors cancel along a path (docs/notes/tpo-learning.md, session 19)
-CONTINUOUS_DEFAULTS = {"telescope": True}
+#: errors cancel along a path, charged to the violating action alone, which keeps an
+#: infeasible state's relaxation per state as LAR's (docs/notes/tpo-learning.md,
+#: sessions 19 and 20)
+CONTINUOUS_DEFAULTS = {"telescope": True, "advantage": "immediate"}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
@@ -131,8 +133,9 @@ class TPOConfig:
     whose reward lies where its zero-slack parent never goes and costs a child that
     must keep its parent's path (docs/tpo-algorithm.md, "The multiplier beta")"""
     advantage: str = field(default="penalized", metadata={"choices": ADVANTAGE_FORMS})
-    """penalized (GAE on the Lagrangian reward) or literal (Eq. 10 as printed);
-    see docs/tpo-algorithm.md"""
+    """penalized (GAE on the Lagrangian reward), literal (Eq. 10 as printed) or
+    immediate (GAE on the reward, each step's penalty on its own action only); see
+    docs/tpo-algorithm.md"""
     phase_fractions: tuple[float, ...] | None = field(default=None)
     """share of the timesteps of each phase: the objectives in topological order, then
     the completion phases (default: equal)"""

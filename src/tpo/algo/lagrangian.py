@@ -15,6 +15,11 @@ Two forms of the advantage:
   the penalty moves one step back with a factor gamma, and critic ``V_i`` learns the
   raw returns. A violating action's penalty then never enters its own advantage, only
   its predecessors' — kept for comparison.
+- ``"immediate"``: ``GAE(r_t) - beta penalty_t``: each violation on the action that
+  commits it and on no other (Prop. 1's ``C_wv(s, a)`` as a per-state price, never
+  summed along the path), and critic ``V_i`` learns the raw returns. The policy's
+  fixed point compares actions state by state, as LAR's admissible sets and its
+  relaxation of an infeasible state do (docs/design.md §2).
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import jax.numpy as jnp
 
 from tpo.algo.losses import check_shapes, discounted_cumsum, gae
 
-AdvantageForm = Literal["penalized", "literal"]  # tpo.algo.config.ADVANTAGE_FORMS
+AdvantageForm = Literal["penalized", "literal", "immediate"]  # tpo.algo.config.ADVANTAGE_FORMS
 
 
 def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax.Array,
@@ -89,6 +94,7 @@ def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Arr
 
         penalized: A_t = GAE(r_t - beta penalty_t)
         literal:   A_t = GAE(r_t) - sum_l (gamma lambda)^l gamma beta penalty_{t+l+1}
+        immediate: A_t = GAE(r_t) - beta penalty_t
     """
     check_shapes(reward, value=value, next_value=next_value, penalty=penalty,
                  terminated=terminated, done=done)
@@ -97,6 +103,8 @@ def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Arr
     if form == "penalized":
         return gae(reward - beta * penalty, value, next_value, terminated, done, gamma, lam)
     advantages, targets = gae(reward, value, next_value, terminated, done, gamma, lam)
+    if form == "immediate":
+        return advantages - beta * penalty, targets
     following = jnp.concatenate([penalty[1:], jnp.zeros_like(penalty[:1])])
     shifted = gamma * beta * following * (1.0 - done)
     return advantages - discounted_cumsum(shifted, gamma * lam, done), targets
