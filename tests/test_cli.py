@@ -301,7 +301,7 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     saved = RunSpec.from_settings({"dynamics": "continuous", **TPOConfig().to_dict()},
                                   saved=True)
     assert saved.config == TPOConfig()
-    # A saved config from before telescope meant the paper's penalty, in any space.
+    # A saved config from before telescope meant the paper's penalty and advantage, in any space.
     old_robot = RunSpec.from_settings({"dynamics": "continuous"}, saved=True).config
     assert (old_robot.telescope, old_robot.advantage) == (False, "penalized")
     # A saved config from before action_bins meant a Gaussian.

@@ -5,12 +5,12 @@ Objective ``i``'s PPO phase penalises each transition by
 ``C_wv = max(0, -A_w(s_t, a_t) - eta_wv)``, where the ancestral advantage comes
 from the frozen critic of ``w``: ``A_w = r_w + gamma V_w(s_{t+1}) - V_w(s_t)``.
 
-Two forms of the advantage:
+Three forms of the advantage:
 
-- ``"penalized"`` (default): GAE on the Lagrangian reward
-  ``r_i - beta * penalty`` (Eq. 6's reward) with critic ``V_i`` trained on its
-  returns. Its gradient is Prop. 3's; a violating action's own advantage carries
-  its penalty.
+- ``"penalized"`` (the default; the continuous robot takes ``"immediate"``): GAE on
+  the Lagrangian reward ``r_i - beta * penalty`` (Eq. 6's reward) with critic
+  ``V_i`` trained on its returns. Its gradient is Prop. 3's; a violating action's
+  own advantage carries its penalty.
 - ``"literal"``: Eq. 10 as printed, ``delta_t - gamma beta penalty(s_{t+1}, a_{t+1})``:
   the penalty moves one step back with a factor gamma, and critic ``V_i`` learns the
   raw returns. A violating action's penalty then never enters its own advantage, only
