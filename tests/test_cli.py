@@ -291,10 +291,11 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     gaussian = TPOConfig.defaults("gaussian")
     assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
     assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
-    robot = TPOConfig(action_bins=5, telescope=True, advantage="immediate")
+    continuous = {"telescope": True, "advantage": "immediate", "tie_critic": "leaf"}
+    robot = TPOConfig(action_bins=5, **continuous)
     assert RunSpec.from_settings({"dynamics": "continuous"}).config == robot
     assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \
-        == TPOConfig(telescope=True, advantage="immediate")
+        == TPOConfig(**continuous)
     assert RunSpec.from_settings({}).config == TPOConfig()
     mine = RunSpec.from_settings({"dynamics": "continuous", "action_bins": 3}).config
     assert (mine.action_bins, mine.ent_coef) == (3, TPOConfig().ent_coef)
@@ -303,12 +304,13 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     assert saved.config == TPOConfig()
     # A saved config from before telescope meant the paper's penalty and advantage, in any space.
     old_robot = RunSpec.from_settings({"dynamics": "continuous"}, saved=True).config
-    assert (old_robot.telescope, old_robot.advantage) == (False, "penalized")
+    assert (old_robot.telescope, old_robot.advantage, old_robot.tie_critic) \
+        == (False, "penalized", "ancestors")
     # A saved config from before action_bins meant a Gaussian.
     old = {k: v for k, v in binned.to_dict().items() if k != "action_bins"}
     assert TPOConfig.from_saved(old).action_bins == 0
     navmap = load_map("small")
     assert TPO(ContinuousNav(navmap), "goal").config == robot
     assert TPO(ContinuousNav(navmap, action="heading"), "goal").config \
-        == TPOConfig(telescope=True, advantage="immediate")
+        == TPOConfig(**continuous)
     assert TPO(ContinuousNav(navmap), "goal", config=TPOConfig()).config == TPOConfig()

@@ -1,6 +1,7 @@
 """The TPO trainer: plain PPO learns, phases freeze their critics, seeds vmap."""
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -108,11 +109,18 @@ def test_restricted_rollouts_act_within_the_admissible_actions(small):
     assert explore.mean() == pytest.approx(0.25, abs=0.05)
 
 
+class Step(NamedTuple):
+    advantage: float
+    penalty: float
+    target: float  # the goal critic's
+    avoid_reward: float
+
+
 def goal_phase_step(train_env, slack: float, avoid_advantage: float, total: int = 2,
-                    update: int = 0, **config) -> tuple[float, float]:
-    """The advantage and penalty of one goal-phase transition of ``A>G`` at ``slack``
-    (``s' = s``, a rollout of one step, at ``update``) whose one-step avoid advantage
-    ``r - (1 - gamma) V_avoid(s)`` is ``avoid_advantage``."""
+                    update: int = 0, **config) -> Step:
+    """One goal-phase transition of ``A>G`` at ``slack`` (``s' = s``, a rollout of one
+    step, at ``update``) whose one-step avoid advantage ``r - (1 - gamma) V_avoid(s)``
+    is ``avoid_advantage``."""
     graph = ObjectiveGraph.parse("A>G", slack, objectives=OBJECTIVES)
     config = TPOConfig(num_envs=1, num_steps=1, num_minibatches=1, **config)
     trainer = Trainer(train_env, graph, config, total)
@@ -127,7 +135,8 @@ def goal_phase_step(train_env, slack: float, avoid_advantage: float, total: int 
                       allowed=None, explore=zeros)
     batch, penalties, _ = trainer.lagrangian_targets(state, trainer.slack_array(), rollout,
                                                      jnp.int32(1))
-    return float(batch.advantage[0]), float(penalties[0, 0])
+    return Step(float(batch.advantage[0]), float(penalties[0, 0]), float(batch.target[0]),
+                float(reward[0, 0, OBJECTIVES.index("avoid")]))
 
 
 @pytest.mark.parametrize(("slack", "gap", "penalty"), [
@@ -142,7 +151,7 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
     train_env, _ = small
     graph = ObjectiveGraph.parse("A>G", slack, objectives=OBJECTIVES)
     assert Trainer(train_env, graph, TPOConfig(), 10**6).margin.tolist() == pytest.approx([0.3])
-    assert goal_phase_step(train_env, slack, -gap)[1] == pytest.approx(penalty, abs=1e-4)
+    assert goal_phase_step(train_env, slack, -gap).penalty == pytest.approx(penalty, abs=1e-4)
 
 
 @pytest.mark.parametrize(("slack", "advantage", "penalty"), [
@@ -153,7 +162,7 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
 def test_a_telescoping_penalty_charges_the_advantage_itself_at_zero_slack(
         small, slack, advantage, penalty):
     train_env, _ = small
-    assert goal_phase_step(train_env, slack, advantage, telescope=True)[1] == pytest.approx(
+    assert goal_phase_step(train_env, slack, advantage, telescope=True).penalty == pytest.approx(
         penalty, abs=1e-4)
 
 
@@ -163,10 +172,10 @@ def test_the_multiplier_rises_over_the_warmup(small, update, scale):
     penalty is 0.25 (A>G at slack 0) loses ``beta * scale * 0.25`` of advantage, the
     scale rising from 0 at the phase's first update to 1 at its sixth."""
     train_env, _ = small
-    base, penalty = goal_phase_step(train_env, 0.0, -0.25, 20, update)
-    warm, _ = goal_phase_step(train_env, 0.0, -0.25, 20, update, beta_warmup=0.5)
-    assert penalty == pytest.approx(0.25, abs=1e-4)
-    assert warm - base == pytest.approx(10.0 * (1 - scale) * 0.25, abs=1e-4)
+    base = goal_phase_step(train_env, 0.0, -0.25, 20, update)
+    warm = goal_phase_step(train_env, 0.0, -0.25, 20, update, beta_warmup=0.5)
+    assert base.penalty == pytest.approx(0.25, abs=1e-4)
+    assert warm.advantage - base.advantage == pytest.approx(10.0 * (1 - scale) * 0.25, abs=1e-4)
 
 
 @pytest.mark.parametrize("dag, expected", [
@@ -196,9 +205,24 @@ def test_the_tie_break_adds_the_ancestors_advantages_bounded(small, avoid_advant
     advantage gains the weighted avoid advantage, at most ``tie_break * range_goal``
     in size (a rollout of one step: GAE is the one-step advantage)."""
     train_env, _ = small
-    off, _ = goal_phase_step(train_env, 100.0, avoid_advantage, tie_break=0.0)
-    on, _ = goal_phase_step(train_env, 100.0, avoid_advantage, tie_break=0.1)
-    assert on - off == pytest.approx(gain, abs=1e-5)
+    off = goal_phase_step(train_env, 100.0, avoid_advantage, tie_break=0.0)
+    on = goal_phase_step(train_env, 100.0, avoid_advantage, tie_break=0.1)
+    assert on.advantage - off.advantage == pytest.approx(gain, abs=1e-5)
+    assert on.target == off.target
+
+
+@pytest.mark.parametrize("avoid_advantage", [-0.7, -90.0, 30.0])
+def test_the_leaf_s_own_critic_can_value_the_ancestors_rewards(small, avoid_advantage):
+    """``tie_critic = "leaf"``: the same transition's avoid reward ``r``, weighted by
+    ``tie_break * range_goal / range_avoid = 0.05``, joins the goal reward, so the
+    advantage and the goal critic's target both gain ``0.05 r``, with no bound."""
+    train_env, _ = small
+    off = goal_phase_step(train_env, 100.0, avoid_advantage, tie_break=0.0)
+    on = goal_phase_step(train_env, 100.0, avoid_advantage, tie_critic="leaf")
+    gain = 0.1 * 1 / 2 * on.avoid_reward
+    assert on.avoid_reward == pytest.approx(avoid_advantage, abs=0.05)  # (1 - gamma) V small
+    assert on.advantage - off.advantage == pytest.approx(gain, abs=1e-5)
+    assert on.target - off.target == pytest.approx(gain, abs=1e-5)
 
 
 def test_seeds_and_slacks_vmap_in_one_compiled_run(small):

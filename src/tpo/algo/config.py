@@ -14,6 +14,7 @@ from tpo.errors import TPOError
 
 ADVANTAGE_FORMS = ("penalized", "literal", "immediate")
 CONSTRAINTS = ("restriction", "penalty")
+TIE_CRITICS = ("ancestors", "leaf")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
 #: fields added since tpo 0.2, and the value a config written before them meant: a
 #: saved model (or a run's config.toml) without the key was trained without the feature
@@ -37,9 +38,11 @@ POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
 #: what a learner in a continuous state space (the continuous navigation robot) sets
 #: beside its policy's defaults: the telescoping penalty at zero slack, whose critic
 #: errors cancel along a path, charged to the violating action alone, which keeps an
-#: infeasible state's relaxation per state as LAR's (docs/notes/tpo-learning.md,
-#: sessions 19 and 20)
-CONTINUOUS_DEFAULTS = {"telescope": True, "advantage": "immediate"}
+#: infeasible state's relaxation per state as LAR's, and the tie-break valued by the
+#: leaf's own critic, which finds the leaf's way to an ancestor's reward that the
+#: ancestor's own path reached through the leaf's forbidden region
+#: (docs/notes/tpo-learning.md, sessions 19 to 21)
+CONTINUOUS_DEFAULTS = {"telescope": True, "advantage": "immediate", "tie_critic": "leaf"}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
@@ -109,6 +112,12 @@ class TPOConfig:
     each step's share at most tie_break of the leaf's reward range), so where the
     leaf is indifferent its policy follows its ancestors, as the tie rule's
     completion does (docs/design.md §2); 0 turns it off"""
+    tie_critic: str = field(default="ancestors", metadata={"choices": TIE_CRITICS})
+    """which critic values the ancestors' returns in the tie-break: ancestors (each
+    ancestor's one-step advantages against its frozen critic, which values the
+    ancestor's own phase's policy; each step's share bounded) or leaf (the ancestors'
+    rewards, with the same weights, join the leaf's reward, so that the leaf's critic
+    values them under the leaf's policy); docs/tpo-algorithm.md"""
     select: bool = True
     """end the run by choosing among the phases' final policies by their greedy Monte
     Carlo returns: the leaf's objective first, then its ancestors roots first, among
@@ -202,6 +211,9 @@ class TPOConfig:
         for name in ("anneal_lr", "completion", "select"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        if not isinstance(self.tie_critic, str) or self.tie_critic not in TIE_CRITICS:
+            raise ConfigError(f"tie_critic must be one of {', '.join(TIE_CRITICS)}, "
+                              f"got {self.tie_critic!r}")
         if not isinstance(self.advantage, str) or self.advantage not in ADVANTAGE_FORMS:
             raise ConfigError(f"advantage must be one of {', '.join(ADVANTAGE_FORMS)}, "
                               f"got {self.advantage!r}")

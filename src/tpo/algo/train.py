@@ -376,10 +376,13 @@ class Trainer:
         ``r_h + gamma V_h(s') - V_h(s)`` (of ``[T, E, P]``): with ``V_h`` frozen these
         targets are fixed, so an ancestor's advantages keep sharpening on every later
         rollout while its values stay frozen.
-        Both forms add to the policy's advantage the ancestors' GAE, each against its
-        frozen critic, weighted by ``problem.tie`` (the roots-first tie-break), each
-        step's share bounded by ``problem.tie_bound``; the critic's targets stay the
-        phase's own.
+        Both forms break the leaf's ties by its ancestors' returns, weighted by
+        ``problem.tie`` (roots first). ``tie_critic = "ancestors"``: the policy's
+        advantage gains the ancestors' GAE, each against its frozen critic, each
+        step's share bounded by ``problem.tie_bound``, and the critic's targets stay
+        the phase's own; ``"leaf"``: the ancestors' weighted rewards join the phase's
+        reward, so its advantage and its critic's targets both value them under its
+        own policy.
         """
         cfg, prob = self.config, self.problem
         pick = jax.nn.one_hot(phase, prob.n_phases)
@@ -387,6 +390,9 @@ class Trainer:
             slack, *self.rollout_values(state, rollout), rollout.reward, rollout.terminated,
             phase)
         reward, v, next_v = rewards @ pick, value @ pick, next_value @ pick
+        tie = jnp.asarray(prob.tie)[phase]
+        if prob.tie.any() and cfg.tie_critic == "leaf":
+            reward = reward + rewards @ tie
         q_target = adv_all if self.restricts else None
         # An exploring step cuts the trace of the policy's returns before it.
         following = jnp.concatenate([rollout.explore[1:], jnp.zeros_like(rollout.explore[:1])])
@@ -395,9 +401,10 @@ class Trainer:
             cfg.advantage, reward, v, next_v, penalty,
             jnp.asarray(prob.beta)[phase] * self.beta_scale(state.update),
             rollout.terminated, done, cfg.gamma, cfg.gae_lambda)
-        if prob.tie.any():  # the ancestors' one-step advantages, bounded, then discounted
+        if prob.tie.any() and cfg.tie_critic == "ancestors":
+            # the ancestors' one-step advantages, bounded, then discounted
             bound = jnp.asarray(prob.tie_bound)[phase]
-            step = jnp.clip(adv_all @ jnp.asarray(prob.tie)[phase], -bound, bound)
+            step = jnp.clip(adv_all @ tie, -bound, bound)
             advantage = advantage + discounted_cumsum(step, cfg.gamma * cfg.gae_lambda, done)
         batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantage, target,
                       q_target, rollout.allowed, 1.0 - rollout.explore)
