@@ -117,7 +117,8 @@ class TPOConfig:
     ancestor's one-step advantages against its frozen critic, which values the
     ancestor's own phase's policy; each step's share bounded) or leaf (the ancestors'
     rewards, with the same weights, join the leaf's reward, so that the leaf's critic
-    values them under the leaf's policy); docs/tpo-algorithm.md"""
+    values them under the leaf's policy, and a completion phase keeps that weighted
+    return); docs/tpo-algorithm.md"""
     select: bool = True
     """end the run by choosing among the phases' final policies by their greedy Monte
     Carlo returns: the leaf's objective first, then its ancestors roots first, among

@@ -36,7 +36,7 @@ class Problem:
         slack_index: ``[C]`` its slack: an edge's index, or ``n_edges`` for zero.
         active: ``[P, C]`` 1 where phase ``p`` keeps constraint ``c``.
         beta: ``[P]`` penalty multiplier of every phase.
-        tie: ``[P, P]`` weight of head ``h``'s return in phase ``p``'s policy advantage:
+        tie: ``[P, P]`` weight of head ``h``'s return in phase ``p``'s objective (``tie_critic``):
             ``tie_break ** (j + 1) * range_p / range_h`` for the ``j``-th ancestor ``h``
             of the leaf ``p`` in topological order (roots first), else 0 (an inner
             phase breaks no ties: it keeps its indifference open to descendants).
