@@ -206,18 +206,14 @@ class TPOConfig:
         for name in ("explore", "tie_break"):
             if getattr(self, name) >= 1:
                 raise ConfigError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
-        if not isinstance(self.constraint, str) or self.constraint not in CONSTRAINTS:
-            raise ConfigError(f"constraint must be one of {', '.join(CONSTRAINTS)}, "
-                              f"got {self.constraint!r}")
+        for name, choices in (("constraint", CONSTRAINTS), ("tie_critic", TIE_CRITICS),
+                              ("advantage", ADVANTAGE_FORMS)):
+            value = getattr(self, name)
+            if not isinstance(value, str) or value not in choices:
+                raise ConfigError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
         for name in ("anneal_lr", "completion", "select"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
-        if not isinstance(self.tie_critic, str) or self.tie_critic not in TIE_CRITICS:
-            raise ConfigError(f"tie_critic must be one of {', '.join(TIE_CRITICS)}, "
-                              f"got {self.tie_critic!r}")
-        if not isinstance(self.advantage, str) or self.advantage not in ADVANTAGE_FORMS:
-            raise ConfigError(f"advantage must be one of {', '.join(ADVANTAGE_FORMS)}, "
-                              f"got {self.advantage!r}")
         if self.phase_fractions is not None:
             fr = tuple(self.phase_fractions) if isinstance(self.phase_fractions,
                                                            tuple | list) else ()
