@@ -2,7 +2,7 @@
 size and its env, on one XLA thread (a local or Ray worker): docs/scaling.md and
 the continuous env's cost beside the grid's (docs/reproduce.md).
 
-    XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1" \\
+    XLA_FLAGS="--xla_cpu_multi_thread_eigen=false" \\
         python benchmarks/bench_units.py [--steps 200000] [--sizes 1,2,4,8] \\
         [--envs grid,velocity,heading] [--repeats 3]
 

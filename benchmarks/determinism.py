@@ -21,7 +21,8 @@ import os
 import subprocess
 import sys
 
-SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+from tpo.experiments.engine import SINGLE_THREAD
+
 UPDATES = 60
 
 

@@ -42,7 +42,7 @@ from typing import Any
 from tpo.atomic import write_atomic
 from tpo.errors import TPOError
 
-SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+SINGLE_THREAD = "--xla_cpu_multi_thread_eigen=false"
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
 CHECKPOINT_SECONDS = 60.0  # a running unit's checkpoint is at most this old
 RAY_RETRIES = 3  # times a unit whose worker died is started again
