@@ -20,6 +20,10 @@ from tpo.algo.distributions import Categorical, DiagGaussian, Discretized, Distr
 
 ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
 
+#: a critic's advantage outputs are in this fraction of its value unit: advantages
+#: are small beside values, and their loss would otherwise hardly move the network
+ADVANTAGE_UNIT = 0.1
+
 
 def orthonormal_columns(a: jax.Array) -> jax.Array:
     """The ``Q`` of ``a = Q R`` (``a``: ``[m, n]``, ``m >= n``, full rank) with ``R``'s
@@ -46,9 +50,6 @@ def orthogonal(scale: float) -> nn.initializers.Initializer:
         return scale * orthonormal_columns(jax.random.normal(key, (cols, rows), dtype)).T
 
     return init
-#: a critic's advantage outputs are in this fraction of its value unit: advantages
-#: are small beside values, and their loss would otherwise hardly move the network
-ADVANTAGE_UNIT = 0.1
 
 
 def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
