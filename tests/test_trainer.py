@@ -227,7 +227,7 @@ def test_the_leaf_s_own_critic_can_value_the_ancestors_rewards(small, avoid_adva
 
 
 def test_seeds_and_slacks_vmap_in_one_compiled_run(small):
-    """docs/design.md §5's hang: parameters initialised outside the vmapped function."""
+    """Seeds x slacks of a whole run in one program (docs/design.md §5: no QR in it)."""
     train_env, _ = small
     graph = ObjectiveGraph.parse("A>G", 0, objectives=OBJECTIVES)
     trainer = Trainer(train_env, graph, TPOConfig(num_envs=4, num_steps=16), 2 * 4 * 16 * 2)
