@@ -1,8 +1,9 @@
 """Policy and critics: one actor, one critic per phase (Flax linen).
 
 Orthogonal initialisation as in PPO implementations (hidden gain sqrt(2),
-policy head 0.01, value heads 1), by :func:`orthogonal`, which needs no LAPACK
-(docs/design.md §5). Parameters are created by :func:`init_params`.
+policy head 0.01, value heads 1). Parameters are created by :func:`init_params`
+*outside* any vmapped function: with the orthogonal initialiser inside,
+``jit(vmap(train))`` deadlocked in a batched QR (docs/design.md §5).
 """
 
 from __future__ import annotations
@@ -19,37 +20,9 @@ import numpy as np
 from tpo.algo.distributions import Categorical, DiagGaussian, Discretized, Distribution
 
 ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
-
 #: a critic's advantage outputs are in this fraction of its value unit: advantages
 #: are small beside values, and their loss would otherwise hardly move the network
 ADVANTAGE_UNIT = 0.1
-
-
-def orthonormal_columns(a: jax.Array) -> jax.Array:
-    """The ``Q`` of ``a = Q R`` (``a``: ``[m, n]``, ``m >= n``, full rank) with ``R``'s
-    diagonal positive: classical Gram-Schmidt, each column orthogonalised twice (which
-    keeps ``Q`` orthonormal to rounding). Only matrix products, no LAPACK: jaxlib's
-    CPU QR waits for helpers on XLA's own thread pool and, with two QRs in flight
-    on a two-thread pool, waits for ever (docs/design.md §5)."""
-    def column(j: jax.Array, q: jax.Array) -> jax.Array:
-        v = a[:, j]
-        for _ in range(2):
-            v = v - q @ (q.T @ v)  # q's columns from j on are still zero
-        return q.at[:, j].set(v / jnp.sqrt(jnp.sum(v * v)))
-
-    return jax.lax.fori_loop(0, a.shape[1], column, jnp.zeros_like(a))
-
-
-def orthogonal(scale: float) -> nn.initializers.Initializer:
-    """Flax's ``orthogonal(scale)`` for a ``Dense`` kernel ``[inputs, outputs]`` (the
-    same matrices from the same key, to rounding) by :func:`orthonormal_columns`."""
-    def init(key: jax.Array, shape: Sequence[int], dtype=jnp.float32) -> jax.Array:
-        rows, cols = shape
-        if rows >= cols:
-            return scale * orthonormal_columns(jax.random.normal(key, (rows, cols), dtype))
-        return scale * orthonormal_columns(jax.random.normal(key, (cols, rows), dtype)).T
-
-    return init
 
 
 def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
@@ -60,9 +33,9 @@ def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
     automatic names."""
     act = ACTIVATIONS[activation]
     for i, width in enumerate(hidden):
-        x = act(nn.Dense(width, kernel_init=orthogonal(np.sqrt(2)),
+        x = act(nn.Dense(width, kernel_init=nn.initializers.orthogonal(np.sqrt(2)),
                          bias_init=nn.initializers.zeros, name=f"layer_{i}")(x))
-    return nn.Dense(out, kernel_init=orthogonal(out_gain),
+    return nn.Dense(out, kernel_init=nn.initializers.orthogonal(out_gain),
                     bias_init=nn.initializers.zeros, name="out")(x)
 
 
@@ -199,7 +172,7 @@ class ValueNorm(NamedTuple):
 
 def init_params(key: jax.Array, actor: Actor, critics: Critics,
                 obs_shape: tuple[int, ...]) -> dict:
-    """``{"actor": ..., "critics": ...}`` for one seed."""
+    """``{"actor": ..., "critics": ...}`` for one seed (call outside vmap)."""
     k_actor, k_critic = jax.random.split(key)
     dummy = jnp.zeros(obs_shape, jnp.float32)
     return {"actor": actor.init(k_actor, dummy)["params"],

@@ -190,8 +190,8 @@ class Trainer:
     # ------------------------------------------------------------------ init
     @partial(jax.jit, static_argnums=0)
     def init_params(self, key: jax.Array) -> dict:
-        """Network parameters of one seed (one compiled program, not one per
-        initialiser's operation)."""
+        """Network parameters of one seed (outside any vmap: docs/design.md §5; one
+        compiled program, not one per initialiser's operation)."""
         return init_params(key, self.actor, self.critics, self.env.obs_shape)
 
     def init(self, key: jax.Array, params: dict | None = None,

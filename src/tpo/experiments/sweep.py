@@ -106,7 +106,7 @@ def run_sweep(env: GridNav | ContinuousNav, dag: str | ObjectiveGraph,
              else ObjectiveGraph.parse(dag, first, objectives=env.objectives))
     graphs = [graph.with_slack(s.tolist()) for s in slack_arr]  # checks every slack vector
     trainer = Trainer(env, graph, config, total_timesteps)
-    per_seed = [trainer.init(jax.random.key(s)) for s in seeds]
+    per_seed = [trainer.init(jax.random.key(s)) for s in seeds]  # outside vmap: docs/design.md §5
     states = _stacked(per_seed, len(slack_arr))
     length = min(chunk_updates, trainer.num_updates)
     over_seeds = jax.vmap(lambda st, sl, n: trainer.run_chunk(st, sl, n, length)[0],
