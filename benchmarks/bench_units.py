@@ -4,14 +4,13 @@ the continuous env's cost beside the grid's (docs/reproduce.md).
 
     XLA_FLAGS="--xla_cpu_multi_thread_eigen=false" \\
         python benchmarks/bench_units.py [--steps 200000] [--sizes 1,2,4,8] \\
-        [--envs grid,velocity,heading] [--repeats 3]
+        [--envs grid,velocity,heading] [--repeats 3] [--grid-learner]
 
 For each env and number of slack values S (x 5 seeds, the reproduction's panel
 (a) `M>A>G` on `home`; velocity and heading: the continuous robot, with the
 observation and the learner that `tpo reproduce --continuous` trains, or with
 ``--grid-learner`` the grid's learner), a fresh unit is compiled and trained
-``steps`` env steps per run. Printed, medians over
-``repeats``: the first chunk (compile + 32 updates), then seconds per run per
+``steps`` env steps per run. Printed, medians over ``repeats``: the first chunk (compile + 32 updates), then seconds per run per
 million env steps after it, and that time over the grid's of the same size
 (measured in the same run). Run it alone on an idle machine.
 """
