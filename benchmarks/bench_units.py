@@ -10,9 +10,10 @@ For each env and number of slack values S (x 5 seeds, the reproduction's panel
 (a) `M>A>G` on `home`; velocity and heading: the continuous robot, with the
 observation and the learner that `tpo reproduce --continuous` trains, or with
 ``--grid-learner`` the grid's learner), a fresh unit is compiled and trained
-``steps`` env steps per run. Printed, medians over ``repeats``: the first chunk (compile + 32 updates), then seconds per run per
-million env steps after it, and that time over the grid's of the same size
-(measured in the same run). Run it alone on an idle machine.
+``steps`` env steps per run. Printed, medians over ``repeats``: the first chunk
+(compile + 32 updates), then seconds per run per million env steps after it,
+and that time over the grid's of the same size (measured in the same run). Run it
+alone on an idle machine.
 """
 
 from __future__ import annotations
