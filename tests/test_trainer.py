@@ -342,6 +342,28 @@ def test_one_critic_head_equals_its_column_of_all_heads():
                                    every[:, column], rtol=0, atol=1e-6)
 
 
+@pytest.mark.parametrize("shape", [(7, 16), (16, 16), (16, 3), (2, 3, 4), (3, 2)])
+def test_the_orthogonal_initialiser_is_jax_s_bit_for_bit(shape):
+    from tpo.algo.networks import orthogonal
+
+    key = jax.random.key(3)
+    ours = jax.jit(orthogonal(0.5), static_argnums=1)(key, shape)
+    np.testing.assert_array_equal(ours, jax.nn.initializers.orthogonal(0.5)(key, shape))
+    keys = jax.random.split(key, 4)  # batched, as the critics' heads and stacked seeds
+    np.testing.assert_array_equal(
+        jax.vmap(orthogonal(2.0), in_axes=(0, None))(keys, shape),
+        jax.vmap(jax.nn.initializers.orthogonal(2.0), in_axes=(0, None))(keys, shape))
+
+
+def test_initialisation_runs_no_qr_kernel_on_xla_s_threads(small):
+    """jaxlib's QR kernel waits for helpers on XLA's pool: two at once on two threads
+    deadlock (docs/design.md §5). Its custom call names the LAPACK routine."""
+    graph = ObjectiveGraph.parse("M>A>G", 0, objectives=OBJECTIVES)
+    trainer = Trainer(small[0], graph, TPOConfig(num_envs=4, num_steps=32), 3 * 4 * 32)
+    hlo = Trainer.init_params.lower(trainer, jax.random.key(0)).as_text()
+    assert "geqrf" not in hlo and "callback" in hlo
+
+
 @pytest.mark.parametrize("constraint", ["penalty", "restriction"])
 def test_a_rollout_s_values_equal_the_critics_on_every_true_next_state(constraint):
     """:meth:`Trainer.rollout_values` runs the critics on each observation once and

@@ -1,14 +1,15 @@
 """Policy and critics: one actor, one critic per phase (Flax linen).
 
 Orthogonal initialisation as in PPO implementations (hidden gain sqrt(2),
-policy head 0.01, value heads 1). Parameters are created by :func:`init_params`
-*outside* any vmapped function: with the orthogonal initialiser inside,
-``jit(vmap(train))`` deadlocked in a batched QR (docs/design.md §5).
+policy head 0.01, value heads 1), by :func:`orthogonal`: JAX's own matrices,
+with the QR on the host, because jaxlib's QR kernel deadlocks when XLA runs two
+at once on a two-thread pool (docs/design.md §5).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import flax.linen as nn
@@ -16,6 +17,7 @@ import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.linalg
 
 from tpo.algo.distributions import Categorical, DiagGaussian, Discretized, Distribution
 
@@ -23,6 +25,37 @@ ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
 #: a critic's advantage outputs are in this fraction of its value unit: advantages
 #: are small beside values, and their loss would otherwise hardly move the network
 ADVANTAGE_UNIT = 0.1
+
+
+def _positive_q(a: np.ndarray) -> np.ndarray:
+    """``Q`` of ``a = QR`` with ``R``'s diagonal made positive, for each matrix of a
+    stack ``[..., m, n]`` (``m >= n``). SciPy's LAPACK is the one jaxlib's own QR
+    calls, so the numbers are ``jnp.linalg.qr``'s, bit for bit."""
+    a = np.asarray(a)
+    out = np.empty_like(a)
+    for i in np.ndindex(a.shape[:-2]):
+        q, r = scipy.linalg.qr(a[i], mode="economic")
+        out[i] = q * np.sign(np.diag(r))
+    return out
+
+
+def orthogonal(scale: float) -> Callable[..., jax.Array]:
+    """``jax.nn.initializers.orthogonal(scale)`` (a kernel ``[..., n_out]``), the same
+    matrices, with the QR computed on the host (:func:`_positive_q`). jaxlib's QR
+    kernel spreads a batch over XLA's thread pool and waits for its helpers there:
+    two QRs at once on a two-thread pool wait on each other for ever, which hung
+    one test process in three (docs/design.md §5)."""
+
+    def init(key: jax.Array, shape: Sequence[int], dtype=jnp.float32) -> jax.Array:
+        n_cols = shape[-1]
+        n_rows = math.prod(shape) // n_cols
+        z = jax.random.normal(key, (max(n_rows, n_cols), min(n_rows, n_cols)), dtype)
+        q = jax.pure_callback(_positive_q, jax.ShapeDtypeStruct(z.shape, z.dtype), z,
+                              vmap_method="expand_dims")
+        q = q.T if n_rows < n_cols else q
+        return jnp.array(scale, dtype) * q.reshape(shape)
+
+    return init
 
 
 def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
@@ -33,9 +66,9 @@ def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
     automatic names."""
     act = ACTIVATIONS[activation]
     for i, width in enumerate(hidden):
-        x = act(nn.Dense(width, kernel_init=nn.initializers.orthogonal(np.sqrt(2)),
+        x = act(nn.Dense(width, kernel_init=orthogonal(np.sqrt(2)),
                          bias_init=nn.initializers.zeros, name=f"layer_{i}")(x))
-    return nn.Dense(out, kernel_init=nn.initializers.orthogonal(out_gain),
+    return nn.Dense(out, kernel_init=orthogonal(out_gain),
                     bias_init=nn.initializers.zeros, name="out")(x)
 
 
