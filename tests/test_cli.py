@@ -291,7 +291,7 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     gaussian = TPOConfig.defaults("gaussian")
     assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
     assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
-    continuous = {"telescope": True, "advantage": "immediate", "tie_critic": "leaf"}
+    continuous = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf"}
     robot = TPOConfig(action_bins=5, **continuous)
     assert RunSpec.from_settings({"dynamics": "continuous"}).config == robot
     assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \
@@ -305,7 +305,10 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     # A saved config from before telescope meant the paper's penalty and advantage, in any space.
     old_robot = RunSpec.from_settings({"dynamics": "continuous"}, saved=True).config
     assert (old_robot.telescope, old_robot.advantage, old_robot.tie_critic) \
-        == (False, "penalized", "ancestors")
+        == ("off", "penalized", "ancestors")
+    # ... and a telescope of true or false the flag of tpo 0.9 and before.
+    assert TPOConfig.from_dict({"telescope": True}).telescope == "all"
+    assert TPOConfig.from_dict({"telescope": False}).telescope == "off"
     # A saved config from before action_bins meant a Gaussian.
     old = {k: v for k, v in binned.to_dict().items() if k != "action_bins"}
     assert TPOConfig.from_saved(old).action_bins == 0

@@ -65,6 +65,14 @@ def test_ancestral_advantages_and_violations():
     c = violations(jnp.array([0.5, -2.0, -0.3]), jnp.array([1, 2, 0]),
                    jnp.array([0.5, 0.0, 1.0]))
     assert np.allclose(c, [1.5, 0.3, 0.0])
+    # Telescoping, per constraint: the zero-slack one charges -A = -(-0.3)... of its parent
+    # (column 0: A = 0.5, credited as -0.5) where flagged; a flag at slack > 0 changes nothing.
+    zero = jnp.array([0.0, 0.0, 1.0])
+    c = violations(jnp.array([0.5, -2.0, -0.3]), jnp.array([0, 2, 0]), zero,
+                   jnp.array([True, False, True]))
+    assert np.allclose(c, [-0.5, 0.3, 0.0])
+    assert np.allclose(violations(jnp.array([0.5, -2.0, -0.3]), jnp.array([0, 2, 0]), zero,
+                                  True), [-0.5, 0.3, 0.0])
 
 
 def test_weights_leave_samples_out_of_the_normalisation_and_the_surrogate():
@@ -129,11 +137,26 @@ def test_immediate_form_charges_the_penalty_to_its_own_action_only():
     assert np.allclose(targets, [2.03125, 3.125, 3.0])  # raw returns
 
 
+def test_traced_form_is_the_penalized_advantage_on_raw_returns():
+    # GAE(r) = (1.53125, 2.125, 1.5); the penalties' GAE-weighted sum (gamma lambda = 0.25)
+    # is (0.25, 1, 0), times beta 2 off: the penalized form's advantage (1.03125, 0.125, 1.5)
+    # with the same critic, while the critic's targets stay the raw returns.
+    term = jnp.array([0.0, 0.0, 1.0])
+    penalty = jnp.array([0.0, 1.0, 0.0])
+    adv, targets = lagrangian_advantages("traced", R, V, V_NEXT, penalty, 2.0, term, term,
+                                         0.5, 0.5)
+    assert np.allclose(adv, [1.03125, 0.125, 1.5])
+    assert np.allclose(targets, [2.03125, 3.125, 3.0])
+    penalized, _ = lagrangian_advantages("penalized", R, V, V_NEXT, penalty, 2.0, term, term,
+                                         0.5, 0.5)
+    np.testing.assert_allclose(adv, penalized)
+
+
 def test_every_form_with_beta_0_is_gae():
     term = jnp.array([0.0, 0.0, 1.0])
     penalty = jnp.array([0.3, 1.0, 2.0])
     expected = gae(R, V, V_NEXT, term, term, 0.5, 0.5)
-    for form in ("penalized", "literal", "immediate"):
+    for form in ("penalized", "literal", "immediate", "traced"):
         got = lagrangian_advantages(form, R, V, V_NEXT, penalty, 0.0, term, term, 0.5, 0.5)
         np.testing.assert_array_equal(got, expected)
 

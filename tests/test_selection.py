@@ -51,6 +51,33 @@ def test_penalties_count_against_the_leaf_s_own():
     assert pick(returns, [36.0, 0.0, 25.0]) == 2  # 11 more
 
 
+def test_a_candidate_that_loses_a_zero_slack_parent_s_return_is_no_candidate():
+    # M>A>G at (100, 0) on hall: the monitor phase's policy crosses the rug to the
+    # meeting room (avoid -4.4) where the leaf keeps the avoid at 0; its penalty is
+    # within the allowance, but the leaf holds the avoid at zero slack.
+    returns = [[82.6, -4.4, -100.0], [0.0, 0.0, -100.0], [0.0, 0.0, -100.0]]
+    assert pick(returns, [4.4, 0.0, 0.0]) == 0  # the allowance alone admits it
+    held = jnp.array([False, True, False])
+    assert int(choose(jnp.array(returns), jnp.array([4.4, 0.0, 0.0]), ORDER, 10.0,
+                      held)) == 2
+    # Within the verdicts' tolerance of the leaf's avoid (0.5) it stays a candidate.
+    returns[0][1] = -0.4
+    assert int(choose(jnp.array(returns), jnp.array([0.4, 0.0, 0.0]), ORDER, 10.0,
+                      held)) == 0
+
+
+def test_a_candidate_better_on_a_higher_held_objective_may_lose_a_lower_one():
+    # M>A>G at (0, 0) on home: the leaf's policy gave up 3 of the monitor root's 77 to
+    # keep out of the rug (a violation of the monitor's zero slack); the monitor phase's
+    # own policy, worse on the avoid below it, is lexicographically the better.
+    returns = jnp.array([[77.0, -9.0, -100.0], [74.0, 0.0, -100.0], [74.0, 0.0, -100.0]])
+    both = jnp.array([True, True, False])
+    assert int(choose(returns, jnp.array([9.0, 0.0, 0.0]), ORDER, 10.0, both)) == 0
+    # Tied on the monitor, the avoid decides: the leaf's own answers.
+    tied = returns.at[0, 0].set(74.2)
+    assert int(choose(tied, jnp.array([9.0, 0.0, 0.0]), ORDER, 10.0, both)) == 2
+
+
 def test_a_phase_s_policy_that_the_leaf_beats_on_its_own_objective_is_no_candidate():
     # Deep Sea Treasure, treasure > time at slack 0: the treasure phase ended with the
     # 17-step treasure 22.4, the leaf with the 19-step 23.7. Faster, but not the

@@ -162,8 +162,45 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
 def test_a_telescoping_penalty_charges_the_advantage_itself_at_zero_slack(
         small, slack, advantage, penalty):
     train_env, _ = small
-    assert goal_phase_step(train_env, slack, advantage, telescope=True).penalty == pytest.approx(
+    assert goal_phase_step(train_env, slack, advantage, telescope="all").penalty == pytest.approx(
         penalty, abs=1e-4)
+
+
+@pytest.mark.parametrize(("dag", "telescoped", "loose"), [
+    ("M>A>G", [True, False], [False, True]),  # A's own constraint could pay for a gain
+    ("A>G, M>G", [True, True], [False, False]),  # both parents are roots
+    ("G>M>A", [True, False], [False, True])])
+def test_telescope_roots_telescopes_the_roots_constraints_only(small, dag, telescoped, loose):
+    """``telescope = "roots"`` (the default): a zero-slack constraint whose parent is a
+    root telescopes; the others are rectified from the tolerance, as the completion's."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse(dag, 0.0, objectives=OBJECTIVES)
+    trainer = Trainer(train_env, graph, TPOConfig(), 10**6)
+    assert (trainer.telescoped.tolist(), trainer.loose.tolist()) == (telescoped, loose)
+    done = Trainer(train_env, graph, TPOConfig(completion=True), 10**6)
+    assert done.telescoped.tolist() == telescoped + [False] * 2  # the completion's: never
+    assert done.loose.tolist() == loose + [True] * 2
+    for mode, flag in (("off", False), ("all", True)):
+        every = Trainer(train_env, graph, TPOConfig(telescope=mode), 10**6)
+        assert every.telescoped.tolist() == [flag] * 2 and not every.loose.any()
+
+
+def test_a_loose_zero_slack_constraint_counts_from_the_tolerance(small):
+    """``M>A>G`` at slack 0: the goal phase's constraint on the avoid (whose own parent
+    is the monitor) is rectified from 0.2 x avoid's reward range 2 = 0.4."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("M>A>G", 0.0, objectives=OBJECTIVES)
+    trainer = Trainer(train_env, graph, TPOConfig(), 10**6)
+    assert trainer.tolerance.tolist() == pytest.approx([0.4, 0.4])  # M -> A, A -> G
+    # Terminal transitions with zero values: each phase's one-step advantage is its reward.
+    reward = np.zeros((3, len(OBJECTIVES)), np.float32)
+    reward[:, OBJECTIVES.index("avoid")] = [-1.0, -0.3, 0.2]
+    reward[:, OBJECTIVES.index("monitor")] = [0.0, 0.0, 0.5]
+    *_, penalty = trainer.constraint_terms(trainer.slack_array(), jnp.zeros((3, 3)),
+                                           jnp.zeros((3, 3)), jnp.asarray(reward),
+                                           jnp.ones(3), jnp.int32(2))
+    # avoid: max(0, 1 - 0.4), max(0, 0.3 - 0.4), 0; monitor (telescoped): 0, 0, -0.5
+    np.testing.assert_allclose(penalty, [0.6, 0.0, -0.5], atol=1e-6)
 
 
 @pytest.mark.parametrize(("update", "scale"), [(10, 0.0), (12, 0.4), (15, 1.0), (19, 1.0)])
@@ -283,6 +320,8 @@ def test_schedules_restart_with_every_phase(small):
         ({"gamma": 1.0}, "gamma must be in [0, 1)"),
         ({"beta": -2.0}, "beta must be a finite number >= 0"),
         ({"advantage": "eq10"}, "advantage must be one of penalized, literal, immediate"),
+        ({"telescope": "roots only"}, "telescope must be one of off, roots, all, got "),
+        ({"telescope": 1}, "telescope must be one of off, roots, all, got 1"),
         ({"hidden": (64, 0)}, "hidden must be 1 to 16 layer widths from 1 to 4096"),
         ({"hidden": (3_000_000_000,)}, "hidden must be 1 to 16 layer widths"),
         ({"anneal_lr": 1}, "anneal_lr must be true or false"),

@@ -12,14 +12,16 @@ import tomli_w
 
 from tpo.errors import TPOError
 
-ADVANTAGE_FORMS = ("penalized", "literal", "immediate")
+ADVANTAGE_FORMS = ("penalized", "literal", "immediate", "traced")
+TELESCOPES = ("off", "roots", "all")
 CONSTRAINTS = ("restriction", "penalty")
 TIE_CRITICS = ("ancestors", "leaf")
 REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
-#: fields added since tpo 0.2, and the value a config written before them meant: a
-#: saved model (or a run's config.toml) without the key was trained without the feature
+#: fields added since tpo 0.2 (or whose default changed), and the value a config
+#: written without them meant: a saved model (or a run's config.toml) without the key
+#: was trained without the feature
 ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
-         "beta_warmup": 0.0, "telescope": False}
+         "beta_warmup": 0.0, "telescope": "off", "advantage": "penalized"}
 
 
 #: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
@@ -42,7 +44,7 @@ POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
 #: leaf's own critic, which finds the leaf's way to an ancestor's reward that the
 #: ancestor's own path reached through the leaf's forbidden region
 #: (docs/notes/tpo-learning.md, sessions 19 to 21)
-CONTINUOUS_DEFAULTS = {"telescope": True, "advantage": "immediate", "tie_critic": "leaf"}
+CONTINUOUS_DEFAULTS = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf"}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
@@ -131,21 +133,25 @@ class TPOConfig:
     beta: float | str = field(default=10.0, metadata={"metavar": "NUMBER|auto"})
     """penalty: Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a
     violation of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
-    telescope: bool = False
-    """penalty: a constraint at zero slack charges the parent's one-step advantage
+    telescope: str = field(default="roots", metadata={"choices": TELESCOPES})
+    """penalty: which constraints at zero slack charge the parent's one-step advantage
     itself, -A_w, not max(0, -A_w): the same with the parent's optimal critic (where
     A_w <= 0), but along a path the critic's errors then telescope (they sum to its
-    errors at the path's ends) instead of each negative one being charged
-    (docs/notes/tpo-learning.md, session 19)"""
+    errors at the path's ends) instead of each negative one being charged. off (the
+    paper's penalty), all, or roots: those whose parent is a root objective, whose
+    positive advantages can only be the critic's errors; a parent with constraints of
+    its own gains where it breaks them, so its zero-slack constraints stay rectified,
+    counted from the tolerance (docs/notes/tpo-learning.md, sessions 19 and 24)"""
     beta_warmup: float = 0.0
     """penalty: share of every phase over which the multiplier rises linearly from 0
     to beta: a phase then explores before its constraints bind, which helps a child
     whose reward lies where its zero-slack parent never goes and costs a child that
     must keep its parent's path (docs/tpo-algorithm.md, "The multiplier beta")"""
-    advantage: str = field(default="penalized", metadata={"choices": ADVANTAGE_FORMS})
-    """penalized (GAE on the Lagrangian reward), literal (Eq. 10 as printed) or
-    immediate (GAE on the reward, each step's penalty on its own action only); see
-    docs/tpo-algorithm.md"""
+    advantage: str = field(default="traced", metadata={"choices": ADVANTAGE_FORMS})
+    """traced (GAE on the reward, less the penalties' own GAE-weighted sum; the critics
+    value the objectives' rewards), penalized (GAE on the Lagrangian reward, the
+    critics value it), literal (Eq. 10 as printed) or immediate (GAE on the reward,
+    each step's penalty on its own action only); see docs/tpo-algorithm.md"""
     phase_fractions: tuple[float, ...] | None = field(default=None)
     """share of the timesteps of each phase: the objectives in topological order, then
     the completion phases (default: equal)"""
@@ -206,8 +212,10 @@ class TPOConfig:
         for name in ("explore", "tie_break"):
             if getattr(self, name) >= 1:
                 raise ConfigError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
+        if isinstance(self.telescope, bool):  # a config of tpo 0.9 and before
+            object.__setattr__(self, "telescope", "all" if self.telescope else "off")
         for name, choices in (("constraint", CONSTRAINTS), ("tie_critic", TIE_CRITICS),
-                              ("advantage", ADVANTAGE_FORMS)):
+                              ("advantage", ADVANTAGE_FORMS), ("telescope", TELESCOPES)):
             value = getattr(self, name)
             if not isinstance(value, str) or value not in choices:
                 raise ConfigError(f"{name} must be one of {', '.join(choices)}, got {value!r}")

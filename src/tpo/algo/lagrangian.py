@@ -5,16 +5,22 @@ Objective ``i``'s PPO phase penalises each transition by
 ``C_wv = max(0, -A_w(s_t, a_t) - eta_wv)``, where the ancestral advantage comes
 from the frozen critic of ``w``: ``A_w = r_w + gamma V_w(s_{t+1}) - V_w(s_t)``.
 
-Three forms of the advantage:
+Four forms of the advantage:
 
-- ``"penalized"`` (the default; the continuous robot takes ``"immediate"``): GAE on
-  the Lagrangian reward ``r_i - beta * penalty`` (Eq. 6's reward) with critic
-  ``V_i`` trained on its returns. Its gradient is Prop. 3's; a violating action's
-  own advantage carries its penalty.
+- ``"penalized"`` (the paper's): GAE on the Lagrangian reward
+  ``r_i - beta * penalty`` (Eq. 6's reward) with critic ``V_i`` trained on its
+  returns. Its gradient is Prop. 3's; a violating action's own advantage carries
+  its penalty.
 - ``"literal"``: Eq. 10 as printed, ``delta_t - gamma beta penalty(s_{t+1}, a_{t+1})``:
   the penalty moves one step back with a factor gamma, and critic ``V_i`` learns the
   raw returns. A violating action's penalty then never enters its own advantage, only
   its predecessors' — kept for comparison.
+- ``"traced"`` (the grid's default; the continuous robot takes ``"immediate"``):
+  ``GAE(r_t) - beta sum_l (gamma lambda)^l penalty_{t+l}``, the penalized form's
+  advantage with critic ``V_i`` on the raw returns (GAE is linear in the reward):
+  a frozen critic values its objective, not its Lagrangian, so the constraints its
+  descendants read from it measure that objective alone; the penalties ahead are
+  summed over GAE's horizon, not bootstrapped.
 - ``"immediate"``: ``GAE(r_t) - beta penalty_t``: each violation on the action that
   commits it and on no other (Prop. 1's ``C_wv(s, a)`` as a per-state price, never
   summed along the path), and critic ``V_i`` learns the raw returns. The policy's
@@ -31,7 +37,8 @@ import jax.numpy as jnp
 
 from tpo.algo.losses import check_shapes, discounted_cumsum, gae
 
-AdvantageForm = Literal["penalized", "literal", "immediate"]  # tpo.algo.config.ADVANTAGE_FORMS
+#: tpo.algo.config.ADVANTAGE_FORMS
+AdvantageForm = Literal["penalized", "literal", "immediate", "traced"]
 
 
 def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax.Array,
@@ -42,17 +49,18 @@ def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax
 
 
 def violations(advantages: jax.Array, parents: jax.Array, slack: jax.Array,
-               telescope: bool = False) -> jax.Array:
+               telescope: bool | jax.Array = False) -> jax.Array:
     """``C_wv = max(0, -A_w - eta_wv)`` for every constraint (an edge ``(w, v)``, whose
     parent's advantage is column ``parents[c]``): ``[..., k] -> [..., C]`` (Prop. 1
-    with the one-step advantage standing in for ``Q_w - V_w``). With ``telescope``,
-    ``C_wv = -A_w`` where ``eta_wv`` is 0: equal under the parent's optimal critic
-    (``A_w <= 0``), and a learned critic's errors then cancel along a path."""
+    with the one-step advantage standing in for ``Q_w - V_w``). Where ``telescope``
+    (one flag, or one per constraint ``[C]``), ``C_wv = -A_w`` where ``eta_wv`` is 0:
+    equal under the parent's optimal critic (``A_w <= 0``), and a learned critic's
+    errors then cancel along a path."""
     if jnp.ndim(parents) != 1 or jnp.shape(slack) != jnp.shape(parents):
         raise ValueError(f"parents {jnp.shape(parents)} and slack {jnp.shape(slack)} must "
                          "be [C] each")
     c = jnp.maximum(0.0, -advantages[..., parents] - slack)
-    return jnp.where(slack > 0, c, -advantages[..., parents]) if telescope else c
+    return jnp.where(jnp.asarray(telescope) & (slack <= 0), -advantages[..., parents], c)
 
 
 def below_best(advantages: jax.Array, allowed: jax.Array) -> jax.Array:
@@ -95,6 +103,7 @@ def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Arr
         penalized: A_t = GAE(r_t - beta penalty_t)
         literal:   A_t = GAE(r_t) - sum_l (gamma lambda)^l gamma beta penalty_{t+l+1}
         immediate: A_t = GAE(r_t) - beta penalty_t
+        traced:    A_t = GAE(r_t) - beta sum_l (gamma lambda)^l penalty_{t+l}
     """
     check_shapes(reward, value=value, next_value=next_value, penalty=penalty,
                  terminated=terminated, done=done)
@@ -105,6 +114,8 @@ def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Arr
     advantages, targets = gae(reward, value, next_value, terminated, done, gamma, lam)
     if form == "immediate":
         return advantages - beta * penalty, targets
+    if form == "traced":
+        return advantages - beta * discounted_cumsum(penalty, gamma * lam, done), targets
     following = jnp.concatenate([penalty[1:], jnp.zeros_like(penalty[:1])])
     shifted = gamma * beta * following * (1.0 - done)
     return advantages - discounted_cumsum(shifted, gamma * lam, done), targets

@@ -121,7 +121,7 @@ class HostRunner:
                                       seed=int(state.update))
             scored.append(self._score(state, slack, ep))
         returns, penalty = (jnp.stack(x) for x in zip(*scored, strict=True))
-        return trainer.answer(state, returns, penalty)
+        return trainer.answer(state, slack, returns, penalty)
 
     def greedy_episodes(self, acting: Acting, episodes: int, seed: int) -> Episodes:
         """``episodes`` greedy episodes of the runner's env from ``env.reset(seed)``, as

@@ -20,7 +20,7 @@ from tpo.tabular.judge import ABS_TOL, REL_TOL
 
 
 def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
-           penalty_tolerance: float | jax.Array) -> jax.Array:
+           penalty_tolerance: float | jax.Array, held: jax.Array | None = None) -> jax.Array:
     """The index of the answering candidate, lexicographically.
 
     ``returns [N, P]``: candidate ``n``'s return of phase ``p``'s objective;
@@ -30,7 +30,12 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     plus ``penalty_tolerance``, and when on its own phase's objective it is no
     worse than the reference: a phase's policy stands in for
     that objective's optimum under constraints the leaf keeps too, so one that
-    the leaf's own policy beats there is not what it stands for. Among the
+    the leaf's own policy beats there is not what it stands for. ``held [P]``
+    (bool) marks the objectives the leaf keeps at zero slack: on them, taken in
+    ``order``, a candidate must be lexicographically no worse than the reference
+    (worse on one only where better on one before it), a check in the returns
+    themselves where the penalty's allowance (the critics' noise) could hide a
+    real loss of a few reward units. Among the
     admissible ones, keep those tied with the best return of phase ``p`` for each
     ``p`` in ``order`` (the leaf's objective first, then its ancestors roots
     first), and of those the latest (the reference where it is still tied).
@@ -41,6 +46,13 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     tolerance = jnp.maximum(REL_TOL * jnp.abs(returns[-1]), ABS_TOL)
     own = jnp.diagonal(returns) >= returns[-1] - tolerance
     keep = own & (penalty <= penalty[-1] + penalty_tolerance)
+    if held is not None:  # lexicographically no worse on the held objectives
+        held = jnp.asarray(held, bool)
+        decided = jnp.zeros(n, bool)
+        for p in order:
+            worse = held[p] & (returns[:, p] < returns[-1, p] - tolerance[p])
+            keep = keep & (decided | ~worse)
+            decided = decided | held[p] & (returns[:, p] > returns[-1, p] + tolerance[p])
     for p in order:
         best = jnp.max(jnp.where(keep, returns[:, p], -jnp.inf))
         keep = keep & (returns[:, p] >= best - tolerance[p])

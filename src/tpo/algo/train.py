@@ -132,6 +132,15 @@ class Trainer:
         ranges = reward_ranges(env.reward_low, env.reward_high)[
             self.problem.reward[self.problem.head]]
         self.tolerance = (config.tolerance * ranges).astype(np.float32)
+        order, graph = self.problem.graph.order, self.problem.graph
+        #: the constraints that telescope at zero slack (``config.telescope``)
+        self.telescoped = np.array([config.telescope == "all" or (
+            config.telescope == "roots" and h < len(order) and not graph.parents(order[h]))
+            for h in self.problem.head], bool)
+        #: the zero-slack constraints counted from the tolerance: the completion's, and
+        #: with ``telescope = "roots"`` every one that does not telescope
+        completion = self.problem.slack_index == len(graph.edges)
+        self.loose = completion | (config.telescope == "roots") & ~self.telescoped
         #: penalty form: each constraint's margin below its slack (capped at half the slack)
         self.margin = (config.margin * ranges).astype(np.float32)
         try:
@@ -446,12 +455,12 @@ class Trainer:
                                        self.config.gamma)
         if self.restricts:
             return rewards, value, next_value, adv_all, jnp.zeros(adv_all.shape[:-1])
-        completion = jnp.asarray(prob.slack_index == len(prob.graph.edges), jnp.float32)
         slacks = prob.constraint_slacks(slack)
         margin = jnp.minimum(jnp.asarray(self.margin), slacks / 2)
+        loose = jnp.asarray(self.loose) & (slacks <= 0)
         c = violations(adv_all, jnp.asarray(prob.head),
-                       slacks - margin + completion * jnp.asarray(self.tolerance),
-                       self.config.telescope)
+                       slacks - margin + jnp.where(loose, jnp.asarray(self.tolerance), 0.0),
+                       jnp.asarray(self.telescoped))
         penalty = c @ jnp.asarray(prob.active)[phase]  # zeros when no edges
         return rewards, value, next_value, adv_all, penalty
 
@@ -544,23 +553,26 @@ class Trainer:
         twice is finishing once."""
         if not self.selects:
             return state
-        return self.answer(state, *self.candidates(state, slack,
-                                                   self.env if env is None else env))
+        return self.answer(state, slack, *self.candidates(state, slack,
+                                                          self.env if env is None else env))
 
     @property
     def selects(self) -> bool:
         """Whether a finished run chooses its answer among the phases' policies."""
         return self.config.select and self.problem.n_phases > 1
 
-    def answer(self, state: TrainState, returns: jax.Array, penalty: jax.Array
-               ) -> TrainState:
+    def answer(self, state: TrainState, slack: jax.Array, returns: jax.Array,
+               penalty: jax.Array) -> TrainState:
         """``state`` acting with the snapshot that :func:`tpo.algo.selection.choose`
-        picks from the candidates' ``returns [P, P]`` and ``penalty [P]``."""
+        picks from the candidates' ``returns [P, P]`` and ``penalty [P]``, holding the
+        parents of the leaf's constraints at zero ``slack``."""
         prob = self.problem
         leaf = len(prob.graph.order) - 1
         ranges = reward_ranges(self.env.reward_low, self.env.reward_high)[prob.reward]
+        zero = (prob.constraint_slacks(slack) <= 0) & (jnp.asarray(prob.active[leaf]) > 0)
+        held = jnp.zeros(prob.n_phases, bool).at[jnp.asarray(prob.head)].max(zero)
         pick = choose(returns, penalty, [leaf, *range(leaf)],
-                      SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)))
+                      SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)), held)
         actor = jax.tree.map(lambda s: s[pick], state.snapshots)
         return state.replace(params={**state.params, "actor": actor})
 
