@@ -306,7 +306,7 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     old_robot = RunSpec.from_settings({"dynamics": "continuous"}, saved=True).config
     assert (old_robot.telescope, old_robot.advantage, old_robot.tie_critic) \
         == ("off", "penalized", "ancestors")
-    # ... and a telescope of true or false the flag of tpo 0.9 and before.
+    # ... and a telescope of true or false, written when it was a flag.
     assert TPOConfig.from_dict({"telescope": True}).telescope == "all"
     assert TPOConfig.from_dict({"telescope": False}).telescope == "off"
     # A saved config from before action_bins meant a Gaussian.

@@ -212,7 +212,7 @@ class TPOConfig:
         for name in ("explore", "tie_break"):
             if getattr(self, name) >= 1:
                 raise ConfigError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
-        if isinstance(self.telescope, bool):  # a config of tpo 0.9 and before
+        if isinstance(self.telescope, bool):  # written when telescope was a flag
             object.__setattr__(self, "telescope", "all" if self.telescope else "off")
         for name, choices in (("constraint", CONSTRAINTS), ("tie_critic", TIE_CRITICS),
                               ("advantage", ADVANTAGE_FORMS), ("telescope", TELESCOPES)):
