@@ -8,7 +8,6 @@ import pytest
 from flax import serialization
 
 from tpo.algo import TPOConfig
-from tpo.algo.config import CONSTRAINTS
 from tpo.cli.main import main
 from tpo.envs import ContinuousNav, grid_model, load_map
 from tpo.envs.continuous_model import continuous_model
@@ -17,7 +16,7 @@ from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, FileLink
 from tpo.experiments.paper import CONTINUOUS_PANELS, FIGURE3, FORMS, PANELS, Settings, direction
 from tpo.experiments.report import budget_text, merge_records, pick_runs, results_csv, verdict_table
-from tpo.experiments.reproduce import check_settings, reproduce
+from tpo.experiments.reproduce import check_settings, learner, reproduce
 from tpo.experiments.sweep import run_sweep
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar
@@ -26,8 +25,20 @@ TINY = TPOConfig(num_envs=8, num_steps=32)
 
 
 def test_the_reproduction_runs_the_default_learner_and_can_run_every_form():
-    assert sorted(FORMS) == sorted(CONSTRAINTS) and FORMS[0] == TPOConfig().constraint
-    assert Settings().forms == Settings.quick().forms == (TPOConfig().constraint,)
+    assert Settings().forms == Settings.quick().forms == ("penalty",)
+    settings = Settings()
+    assert learner("penalty", settings) == TPOConfig()  # the grid's default learner
+    assert {f: learner(f, settings).constraint for f in FORMS} == {
+        "penalty": "penalty", "restriction": "restriction", "paper": "penalty"}
+    # The paper's TPO as printed: Eq. 10's penalized advantage on every constraint
+    # rectified, no margin, no tie-break, the leaf's policy the answer; the rest the
+    # default learner's.
+    paper = learner("paper", settings)
+    assert (paper.advantage, paper.telescope, paper.margin, paper.tie_break,
+            paper.select) == ("penalized", "off", 0.0, 0.0, False)
+    assert replace(paper, advantage="traced", telescope="roots", margin=0.15,
+                   tie_break=0.1, select=True) == TPOConfig()
+    assert learner("paper", replace(settings, completion=True)).completion
 
 
 def test_each_panel_trains_its_share_of_the_budget():
@@ -157,8 +168,26 @@ def test_bad_continuous_settings_are_one_line(change, message):
 @pytest.mark.parametrize("forms", [(), ("penalty", "penalty"), ("bogus",), "penalty"])
 def test_bad_forms_are_one_line(forms):
     with pytest.raises(TPOError, match=r"^forms must be distinct names from "
-                                       r"restriction, penalty, got .*$"):
+                                       r"penalty, restriction, paper, got .*$"):
         check_settings(Settings(forms=forms))
+
+
+@pytest.mark.parametrize(("flag", "forms"), [
+    ([], ("penalty",)), (["--constraint", "paper"], ("paper",)),
+    (["--constraint", "both"], ("penalty", "restriction")),
+    (["--constraint", "all"], ("penalty", "restriction", "paper"))])
+def test_the_constraint_flag_picks_the_forms(tmp_path, monkeypatch, flag, forms):
+    ran = []
+
+    class Done:
+        def summary(self):
+            return "done"
+
+    monkeypatch.setattr("tpo.experiments.reproduce.reproduce",
+                        lambda out, settings, *a: ran.append(settings.forms) or Done())
+    assert main(["reproduce", "--quick", *flag, "--out", str(tmp_path / "r"),
+                 "--quiet"]) == 0
+    assert ran == [forms]
 
 
 def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path):
@@ -267,7 +296,8 @@ def test_quick_reproduction_writes_figures_tables_and_report_and_resumes(tmp_pat
     results = json.loads((out / "results.json").read_text())["forms"]
     assert {(form, name, rec["form"], rec["panel"]["name"]) for form, panels in results.items()
             for name, rec in panels.items()} == {
-        (form, name, form, name) for form in FORMS for name in ("a", "b", "c", "d", "fig3")}
+        (form, name, form, name) for form in ("penalty", "restriction")
+        for name in ("a", "b", "c", "d", "fig3")}
     record = results["penalty"]["b"]
     assert results["restriction"]["b"]["lar"] == record["lar"]
     grid = grid_model(load_map("small"), gamma=0.99)

@@ -18,10 +18,11 @@ from itertools import pairwise
 from pathlib import Path
 from typing import NoReturn
 
-from tpo.algo.config import CONSTRAINTS, TPOConfig
+from tpo.algo.config import TPOConfig
 from tpo.cli.options import UsageError, add_fields, read_fields
 from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
 from tpo.errors import TPOError
+from tpo.experiments.paper import FORMS
 from tpo.experiments.runspec import ACTION_KINDS, DEFAULT_STEPS, RunSpec, learner_defaults
 from tpo.graph import ObjectiveGraph
 from tpo.locking import exclusive
@@ -367,7 +368,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from tpo.experiments.paper import CONTINUOUS_PANELS, FORMS, Settings
+    from tpo.experiments.paper import CONTINUOUS_PANELS, Settings
     from tpo.experiments.reproduce import check_settings, reproduce
 
     if not args.out.strip():
@@ -390,7 +391,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if args.steps is not None:
         changes["steps"] = args.steps
     if args.constraint is not None:
-        changes["forms"] = FORMS if args.constraint == "both" else (args.constraint,)
+        changes["forms"] = {"all": FORMS, "both": ("penalty", "restriction")}.get(
+            args.constraint, (args.constraint,))
     if args.completion:
         changes["completion"] = True
     if args.continuous is not None:
@@ -582,9 +584,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="env steps per run of a panel of full share (default 1,500,000; "
                         "each panel's runs train its share: docs/reproduce.md)")
     add_backend_options(p)
-    p.add_argument("--constraint", choices=(*CONSTRAINTS, "both"),
-                   help="the form of the constraint (default penalty, the default "
-                        "learner's); both: every form side by side on the same seeds")
+    p.add_argument("--constraint", choices=(*FORMS, "both", "all"),
+                   help="the form of the learner (default penalty, the default learner's; "
+                        "paper: the paper's TPO as printed, Eq. 10's penalized advantage); "
+                        "both: penalty and restriction, all: every form, side by side on "
+                        "the same seeds")
     p.add_argument("--completion", action="store_true",
                    help="completion phases after the leaf (docs/design.md §5)")
     p.add_argument("--continuous", choices=ACTION_KINDS,

@@ -1,8 +1,9 @@
 """The paper's experiments (§V): Figure 2 (four DAGs × a slack sweep) and Figure 3
 (the robot's paths on the household map), by one call or ``tpo reproduce``.
 
-Every panel runs in each form of the constraint (``Settings.forms``: the paper's
-penalty and the restriction, on the same seeds). A panel of one form is one
+Every panel runs in each form of the learner (``Settings.forms``, of
+:data:`~tpo.experiments.paper.FORM_CONFIGS`: the penalty, the restriction and the
+paper's TPO as printed, on the same seeds). A panel of one form is one
 :func:`~tpo.experiments.sweep.run_sweep`: every slack × seed of its DAG trains as
 one compiled program: a unit of :mod:`tpo.experiments.engine`, run by its local
 or Ray backend. Each finished panel is saved to ``OUT/panels/FORM-NAME.json`` at
@@ -39,6 +40,8 @@ from tpo.experiments.paper import (
     CONTINUOUS_FORM,
     CONTINUOUS_OBSERVATION,
     CONTINUOUS_PANELS,
+    FORM_CONFIGS,
+    FORMS,
     Panel,
     Settings,
 )
@@ -95,22 +98,22 @@ def learner(form: str, settings: Settings, action: str = "") -> TPOConfig:
     robot's action kind, whose policy's defaults it takes; "" on the grid)."""
     from tpo.experiments.runspec import learner_defaults
 
-    return learner_defaults("continuous" if action else "grid", action, constraint=form,
-                            completion=settings.completion)
+    return learner_defaults("continuous" if action else "grid", action,
+                            **FORM_CONFIGS[form], completion=settings.completion)
 
 
 def check_settings(settings: Settings) -> None:
     """Raise on anything a panel's training would refuse (forms, map, budget,
     config), before anything is written."""
     from tpo.algo import Trainer
-    from tpo.algo.config import CONSTRAINTS, ConfigError
+    from tpo.algo.config import ConfigError
     from tpo.envs.continuous import ACTION_KINDS
     from tpo.graph import ObjectiveGraph
 
     forms = settings.forms
     if not isinstance(forms, tuple) or not forms or len(set(forms)) != len(forms) \
-            or not set(forms) <= set(CONSTRAINTS):
-        raise TPOError(f"forms must be distinct names from {', '.join(CONSTRAINTS)}, "
+            or not set(forms) <= set(FORMS):
+        raise TPOError(f"forms must be distinct names from {', '.join(FORMS)}, "
                        f"got {forms!r}")
     if not isinstance(settings.continuous, tuple) \
             or not set(settings.continuous) <= set(CONTINUOUS_PANELS):
