@@ -72,10 +72,11 @@ def main() -> None:
     navmap = load_map(args.map)
     print(f"{'env':<28} {'envs':>6} {'steps/s':>12}   ({jax.devices()[0].platform})")
     for n in args.envs:
-        for obs in ("factored", "coords"):
+        for obs in ("factored", "factored+onehot", "coords"):
             measure(f"GridNav ({obs})", GridNav(navmap, observation=obs), n, args.steps,
                     args.repeats)
-        measure("GridNav slip 0.1", GridNav(navmap, slip=0.1), n, args.steps, args.repeats)
+        measure("GridNav slip 0.1", GridNav(navmap, slip=0.1, observation="factored"), n,
+                args.steps, args.repeats)
         measure("ContinuousNav velocity", ContinuousNav(navmap), n, args.steps // 10,
                 args.repeats, continuous_actions=True)
         measure("ContinuousNav heading", ContinuousNav(navmap, action="heading"), n,

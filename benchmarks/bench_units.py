@@ -7,13 +7,14 @@ the continuous env's cost beside the grid's (docs/reproduce.md).
         [--envs grid,velocity,heading] [--repeats 3] [--grid-learner]
 
 For each env and number of slack values S (x 5 seeds, the reproduction's panel
-(a) `M>A>G` on `home`; velocity and heading: the continuous robot, with the
+(a) `M>A>G` on `home`; grid: the grid with its default observation, grid:KIND
+with observation KIND; velocity and heading: the continuous robot, with the
 observation and the learner that `tpo reproduce --continuous` trains, or with
 ``--grid-learner`` the grid's learner), a fresh unit is compiled and trained
 ``steps`` env steps per run. Printed, medians over ``repeats``: the first chunk
 (compile + 32 updates), then seconds per run per million env steps after it,
-and that time over the grid's of the same size (measured in the same run). Run it
-alone on an idle machine.
+and that time over the first env's of the same size (measured in the same run).
+Run it alone on an idle machine.
 """
 
 from __future__ import annotations
@@ -34,8 +35,10 @@ SLACKS = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 def make_problem(kind: str, grid_learner: bool) -> tuple[GridNav | ContinuousNav, TPOConfig]:
     """The env of ``kind`` and the config the reproduction trains on it (the grid's
     with ``grid_learner``)."""
-    if kind == "grid":
-        return GridNav(load_map("home"), random_start=True), learner_defaults("grid", "")
+    if kind.startswith("grid"):
+        observation = kind.partition(":")[2] or "auto"
+        return (GridNav(load_map("home"), observation=observation, random_start=True),
+                learner_defaults("grid", ""))
     env = ContinuousNav(load_map("home"), action=kind, observation=CONTINUOUS_OBSERVATION,
                         random_start=True)
     return env, learner_defaults("grid" if grid_learner else "continuous", kind)
@@ -63,8 +66,8 @@ def main() -> None:
                         help="train the continuous envs with the grid's learner")
     args = parser.parse_args()
     kinds = args.envs.split(",")
-    print(f"{'env':>8} {'slacks':>6} {'runs':>5} {'first chunk s':>14} "
-          f"{'s per run per 1M steps':>23} {'/ grid':>7}")
+    print(f"{'env':>21} {'slacks':>6} {'runs':>5} {'first chunk s':>14} "
+          f"{'s per run per 1M steps':>23} {'/ ' + kinds[0]:>7}")
     for size in map(int, args.sizes.split(",")):
         rates = {}
         for kind in kinds:
@@ -72,8 +75,8 @@ def main() -> None:
             firsts, per_run = zip(*[time_unit(env, config, size, args.steps)
                                     for _ in range(args.repeats)], strict=True)
             rates[kind] = statistics.median(per_run)
-            ratio = f"{rates[kind] / rates['grid']:7.2f}" if "grid" in rates else f"{'-':>7}"
-            print(f"{kind:>8} {size:>6} {5 * size:>5} {statistics.median(firsts):>14.1f} "
+            ratio = f"{rates[kind] / rates[kinds[0]]:7.2f}"
+            print(f"{kind:>21} {size:>6} {5 * size:>5} {statistics.median(firsts):>14.1f} "
                   f"{rates[kind]:>23.1f} {ratio}", flush=True)
 
 

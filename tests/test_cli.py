@@ -194,7 +194,8 @@ def test_train_flags_reach_the_run_config_and_bad_values_are_one_line(tmp_path, 
                           (["--gamma", "1"], "gamma must be in [0, 1), got 1.0"),
                           (["--slack", "0,,1"], "bad --slack '0,,1': expected number,..."),
                           (["--observation", "grid"],
-                           "bad --observation 'grid': choose one of factored, onehot, coords"),
+                           "bad --observation 'grid': choose one of auto, factored, onehot, "
+                           "coords, factored+onehot"),
                           (["--beta", "AUTO"], 'beta must be a finite number >= 0 or "auto"'),
                           (["--env", " "], "bad --env ' ': expected text")]:
         assert main(["train", "--map", "small", "--out", str(tmp_path / "x"), *args]) == 2

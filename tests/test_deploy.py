@@ -126,7 +126,7 @@ def test_metadata_says_what_the_policy_expects(grid_model, tmp_path):
     meta = policy.meta
     assert meta["dag"] == grid_model.graph.spec and meta["slack"] == [0.0, 0.0]
     assert meta["objectives"] == ["goal", "avoid", "monitor"] and meta["gamma"] == 0.99
-    assert meta["observation"]["kind"] == "factored"
+    assert meta["observation"]["kind"] == "factored+onehot"
     assert meta["action"]["meanings"] == ["up", "down", "left", "right"]
     assert meta["map"]["name"] == "small" and len(meta["map"]["sha256"]) == 64
     assert json.loads(session.get_modelmeta().custom_metadata_map["tpo"]) == meta

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tpo.envs import load_map, parse_map
-from tpo.envs.grid import OBSERVATIONS, GridNav, observation_table
+from tpo.envs.grid import OBSERVATIONS, ONEHOT_CELLS, GridNav, observation_table
 from tpo.errors import MapError
 from tpo.tabular import evaluate_policy, softmax
 
@@ -121,6 +121,32 @@ def test_factored_observation_by_hand():
     assert table[1, 2].tolist() == expected
 
 
+def test_factored_onehot_observation_by_hand():
+    table = observation_table(parse_map(TINY), "factored+onehot")
+    # Cell (1, 2): the factored numbers, then the one-hot of free cell 1 of 6
+    # (free cells in row-major order: (1, 1), (1, 2), (1, 3), (2, 1), ...).
+    assert table.shape == (4, 5, 4 + 5 + 4 + 2 + 6)
+    assert table[1, 2].tolist() == [0, 1, 0, 0] + [0, 0, 1, 0, 0] + [1, 0, 0, 0] + [1, 0] + [
+        0, 1, 0, 0, 0, 0]
+    assert table[2, 3, -6:].tolist() == [0, 0, 0, 0, 0, 1]
+    assert not table[0, 0, -6:].any()  # a wall is no free cell
+
+
+def test_auto_observation_adds_the_cell_up_to_a_size():
+    """"auto" is factored+onehot up to ONEHOT_CELLS free cells, factored beyond, and
+    the env records (and saves) the kind it chose."""
+    small = GridNav(load_map("small"))
+    assert small.observation == "factored+onehot"
+    assert small.to_spec()["observation"] == small.observation
+    assert small.obs_shape == (8 + 13 + 6 + 44,)
+    side = int(ONEHOT_CELLS**0.5) + 3  # (side - 2)**2 free cells, just over the limit
+    room = "\n".join(["#" * side, "#S" + "." * (side - 4) + "G#",
+                      *["#" + "." * (side - 2) + "#"] * (side - 3), "#" * side])
+    large = GridNav(parse_map(f'grid = """\n{room}\n"""'))
+    assert (side - 2) ** 2 > ONEHOT_CELLS
+    assert large.observation == "factored" and large.obs_shape == (2 * side + 6,)
+
+
 def test_unknown_observation_is_an_error():
     with pytest.raises(MapError, match="unknown observation 'pixels'"):
         GridNav(parse_map(TINY), observation="pixels")
@@ -169,3 +195,16 @@ def test_random_starts_cover_every_free_cell_but_the_goal():
     fixed = GridNav(parse_map(TINY))
     _, states = jax.vmap(fixed.reset, in_axes=(0, None))(keys, fixed.params)
     assert {tuple(p) for p in np.asarray(states.pos).tolist()} == {(1, 1)}
+
+
+def test_a_grid_run_saved_before_auto_keeps_the_factored_observation():
+    """A grid run's settings without an observation (written before "auto") mean the
+    factored one; a new run asks for "auto" and keeps asking for it when resumed."""
+    import tomllib
+
+    from tpo.experiments.runspec import RunSpec
+
+    assert RunSpec.from_settings({}, saved=True).observation == "factored"
+    run = RunSpec.from_settings({})
+    assert run.observation == "auto" and run.model().env.observation == "factored+onehot"
+    assert RunSpec.from_settings(tomllib.loads(run.to_toml()), saved=True) == run

@@ -223,6 +223,6 @@ def _observer(kind: str, arrays: dict[str, np.ndarray]
         return ContinuousObserver(*(arrays[f"observer/{n}"] for n in
                                     ("walls", "avoid", "monitor", "beams", "ray_t")),
                                   factored=bool(arrays.get("observer/factored", False)))
-    if kind in ("factored", "onehot", "coords"):
+    if kind in ("factored", "onehot", "coords", "factored+onehot"):
         return GridObserver(arrays["observer/table"])
     return None  # an env of the user's own: its observations are the env's

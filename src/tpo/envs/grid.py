@@ -10,13 +10,21 @@ step without the reset. The dynamics and rewards are those of
 :meth:`GridNav.tabular_observations`.
 
 Observations are looked up in a per-map table ``[H, W, D]`` (one gather per
-step). Three encodings (see :data:`OBSERVATIONS`):
+step). Four encodings (see :data:`OBSERVATIONS`):
 
-- ``"factored"`` (default): one-hot row + one-hot column + the four neighbour
-  walls + in-avoid + in-monitor, ``H + W + 6`` numbers. Sharp per-row/column
-  features that an MLP combines into cells, growing with ``H + W``, not ``H * W``.
+- ``"factored"``: one-hot row + one-hot column + the four neighbour walls +
+  in-avoid + in-monitor, ``H + W + 6`` numbers. Sharp per-row/column features
+  that an MLP combines into cells, growing with ``H + W``, not ``H * W``.
 - ``"onehot"``: one-hot cell, ``H * W`` numbers (learns reliably, scales badly).
 - ``"coords"``: row and column in ``[0, 1]`` + walls + region flags, 8 numbers.
+- ``"factored+onehot"``: the factored numbers, then a one-hot of the free cell
+  (``H + W + 6 + F`` numbers for ``F`` free cells): the row and column features
+  generalize across a room, the cell's own number lets a small MLP draw a value
+  that changes at a wall (the held-out maps' detours, docs/notes).
+
+``"auto"`` (the default) is ``"factored+onehot"`` on maps of at most
+:data:`ONEHOT_CELLS` free cells and ``"factored"`` on larger ones; the env
+records the kind it chose (:attr:`GridNav.observation`).
 
 ``benchmarks/bench_observations.py`` measured which of them PPO learns from
 (README, "Observations"). ``random_start=True`` starts episodes in a uniformly
@@ -40,7 +48,8 @@ from tpo.envs.grid_model import MOVES, GridModel, grid_model, slip_matrix
 from tpo.envs.maps import NavMap, check_max_steps
 from tpo.errors import MapError
 
-OBSERVATIONS = ("factored", "onehot", "coords")
+OBSERVATIONS = ("factored", "onehot", "coords", "factored+onehot")
+ONEHOT_CELLS = 4096  # "auto" adds the free cell's one-hot up to this many free cells
 
 
 @struct.dataclass
@@ -64,21 +73,36 @@ class GridState:
     time: jax.Array  # int32 [], steps taken in this episode
 
 
-def observation_table(navmap: NavMap, kind: str = "factored") -> np.ndarray:
+def observation_kind(navmap: NavMap, kind: str) -> str:
+    """``kind``, with ``"auto"`` resolved for ``navmap`` (module docstring)."""
+    if kind == "auto":
+        return "factored+onehot" if (~navmap.walls).sum() <= ONEHOT_CELLS else "factored"
+    if kind not in OBSERVATIONS:
+        raise MapError(f"unknown observation {kind!r:.40}; choose one of auto, "
+                       f"{', '.join(OBSERVATIONS)}")
+    return kind
+
+
+def observation_table(navmap: NavMap, kind: str = "auto") -> np.ndarray:
     """The observation of every cell, ``float32 [H, W, D]``."""
+    kind = observation_kind(navmap, kind)
     h, w = navmap.shape
     rows, cols = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
     padded = np.pad(navmap.walls, 1, constant_values=True)
     walls = np.stack([padded[1 + dr:1 + dr + h, 1 + dc:1 + dc + w] for dr, dc in MOVES], -1)
     flags = np.stack([navmap.avoid_mask, navmap.monitor_mask], -1)
+    factored = [np.eye(h)[rows], np.eye(w)[cols], walls, flags]
     if kind == "factored":
-        parts = [np.eye(h)[rows], np.eye(w)[cols], walls, flags]
+        parts = factored
     elif kind == "onehot":
         parts = [np.eye(h * w)[rows * w + cols]]
     elif kind == "coords":
         parts = [np.stack([rows / max(h - 1, 1), cols / max(w - 1, 1)], -1), walls, flags]
     else:
-        raise MapError(f"unknown observation '{kind}'; choose one of {', '.join(OBSERVATIONS)}")
+        free = ~navmap.walls
+        cell = np.zeros((h, w, int(free.sum())))
+        cell[free, np.arange(cell.shape[-1])] = 1.0
+        parts = [*factored, cell]
     return np.concatenate(parts, axis=-1).astype(np.float32)
 
 
@@ -88,11 +112,11 @@ class GridNav(JaxEnv):
     Rewards are vectors ``[goal, avoid, monitor]``; actions up, down, left, right.
     """
 
-    def __init__(self, navmap: NavMap, slip: float = 0.0, observation: str = "factored",
+    def __init__(self, navmap: NavMap, slip: float = 0.0, observation: str = "auto",
                  max_steps: int | None = None, random_start: bool = False) -> None:
         slip_matrix(slip)  # validates
         self.navmap = navmap
-        self.observation = observation
+        self.observation = observation_kind(navmap, observation)
         table = observation_table(navmap, observation)
         steps = check_max_steps(navmap.max_steps if max_steps is None else max_steps)
         self.random_start = random_start

@@ -102,7 +102,7 @@ class NavEnv(gym.Env):
 class GridNavEnv(NavEnv):
     """``tpo/GridNav-*``: the navigation grid."""
 
-    def __init__(self, map: str = "home", slip: float = 0.0, observation: str = "factored",
+    def __init__(self, map: str = "home", slip: float = 0.0, observation: str = "auto",
                  max_steps: int | None = None, random_start: bool = False,
                  render_mode: str | None = None) -> None:
         env = GridNav(load_map(map), slip=slip, observation=observation, max_steps=max_steps,

@@ -73,6 +73,7 @@ CONTINUOUS_PANELS = ("a", "b", "c", "d", "fig3")
 CONTINUOUS_FORM = "penalty"
 CONTINUOUS_SLACKS = (0.0, 100.0)
 CONTINUOUS_OBSERVATION = "factored"  # ContinuousNav's observation (a reproduction's setting)
+GRID_OBSERVATION = "auto"  # GridNav's (tpo.envs.grid: factored+onehot on the paper's maps)
 # A unit of work (one compiled program) holds at most this many of a panel's slack
 # values x every seed: a panel of 8 is two units, so that two workers share the panels
 # evenly (whole panels left one worker idle for the last 77 s; docs/scaling.md).

@@ -42,6 +42,7 @@ from tpo.experiments.paper import (
     CONTINUOUS_PANELS,
     FORM_CONFIGS,
     FORMS,
+    GRID_OBSERVATION,
     Panel,
     Settings,
 )
@@ -88,7 +89,7 @@ def panel_problem(form: str, panel: Panel, xs: list[float], settings: Settings
     navmap = load_map(settings.map)
     env = (ContinuousNav(navmap, action=panel.action, observation=CONTINUOUS_OBSERVATION,
                          random_start=True) if panel.action
-           else GridNav(navmap, random_start=True))
+           else GridNav(navmap, observation=GRID_OBSERVATION, random_start=True))
     n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0, objectives=OBJECTIVES).edges)
     return env, learner(form, settings, panel.action), [panel.slack(x, n_edges) for x in xs]
 
@@ -171,7 +172,8 @@ def reproduce(out: str | Path, settings: Settings | None = None,
     (out / "panels").mkdir(parents=True, exist_ok=True)
     settings_file = out / "settings.json"
     mine = asdict(settings)
-    mine["learners"] = {form: learner(form, settings).to_dict() for form in settings.forms}
+    mine["learners"] = {form: {**learner(form, settings).to_dict(),
+                               "observation": GRID_OBSERVATION} for form in settings.forms}
     if settings.continuous:
         mine["learners"][f"continuous-{settings.action}"] = {
             **learner(CONTINUOUS_FORM, settings, settings.action).to_dict(),

@@ -25,6 +25,10 @@ ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: n
 #: moves half a cell a step, and its zero-slack phases need twice the grid's steps a
 #: phase to trace the reference's path (docs/notes/tpo-learning.md, session 17)
 DEFAULT_STEPS = {"grid": 1_000_000, "continuous": 4_000_000}
+#: a run's observation when none is given, by dynamics (tpo.envs.grid's "auto":
+#: the factored numbers and the free cell's one-hot up to ONEHOT_CELLS free cells)
+DEFAULT_OBSERVATION = {"grid": "auto", "continuous": "factored"}
+OBSERVATIONS = ("auto", "factored", "onehot", "coords", "factored+onehot")
 
 
 def learner_defaults(dynamics: str, action: str, **values: Any) -> TPOConfig:
@@ -60,9 +64,10 @@ class RunSpec:
     """grid (cell moves) or continuous (a point robot with range sensors) on the map"""
     slip: float = 0.0
     """grid: probability that a move goes in another direction"""
-    observation: str = field(default="factored",
-                             metadata={"choices": ("factored", "onehot", "coords")})
-    """observation: factored, onehot (grid only) or coords"""
+    observation: str = field(default=DEFAULT_OBSERVATION["grid"],
+                             metadata={"choices": OBSERVATIONS})
+    """grid: auto (default), factored, onehot, coords or factored+onehot; continuous:
+    factored (default) or coords"""
     action: str = field(default="velocity", metadata={"choices": ACTION_KINDS})
     """continuous: velocity (a 2-vector) or heading (one of 8 compass headings)"""
     noise: float = 0.0
@@ -80,10 +85,12 @@ class RunSpec:
         settings of a run that tpo wrote (:meth:`TPOConfig.from_saved`)."""
         settings = dict(settings)
         defaults = {f.name: f.default for f in fields(cls) if f.name != "config"}
-        if settings.get("dynamics") == "continuous":
+        continuous = settings.get("dynamics") == "continuous"
+        if continuous:
             defaults["steps"] = DEFAULT_STEPS["continuous"]
-            if saved:
-                defaults["observation"] = "coords"  # what a continuous run saved before it meant
+            defaults["observation"] = DEFAULT_OBSERVATION["continuous"]
+        if saved:  # what a run saved without the key meant when it was written
+            defaults["observation"] = "coords" if continuous else "factored"
         run = {name: settings.pop(name, default) for name, default in defaults.items()}
         slack = run["slack"]
         slack = [slack] if isinstance(slack, int | float) else slack
