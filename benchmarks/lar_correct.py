@@ -32,7 +32,7 @@ def main() -> None:
     parser.add_argument("--map", default="small")
     parser.add_argument("--problems", nargs="+", default=list(PROBLEMS), metavar="DAG:SLACK")
     parser.add_argument("--seeds", type=int, default=4)
-    parser.add_argument("--observation", default="factored", choices=OBSERVATIONS)
+    parser.add_argument("--observation", default="auto", choices=("auto", *OBSERVATIONS))
     parser.add_argument("--steps", type=int, default=600_000)
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="TPOConfig fields, as TOML values (constraint='penalty')")

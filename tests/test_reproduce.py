@@ -44,9 +44,10 @@ def test_the_reproduction_runs_the_default_learner_and_can_run_every_form():
 def test_each_panel_trains_its_share_of_the_budget():
     settings = Settings()
     steps = {p.name: settings.steps_of(p) for p, _ in settings.panels()}
-    assert steps == {"a": 750_000, "b": 1_500_000, "c": 750_000, "d": 500_000,
+    assert steps == {"a": 500_000, "b": 1_000_000, "c": 750_000, "d": 333_333,
                      "fig3": 750_000}
-    assert budget_text(settings) == "1,500,000 in (b), 750,000 in (a) (c) (fig3), 500,000 in (d)"
+    assert budget_text(settings) == ("1,000,000 in (b), 750,000 in (c) (fig3), 500,000 in (a), "
+                                     "333,333 in (d)")
     even = replace(settings, steps=900, shares={})
     assert budget_text(even) == "900" and {even.steps_of(p) for p, _ in even.panels()} == {900}
     # The continuous robot's panels: every DAG and Figure 3 at slack 0 and 100, on their
@@ -73,10 +74,10 @@ def test_units_train_every_run_once_cut_evenly_costliest_first():
     assert [u[0] for u in units[:2]] == ["penalty-b.1", "penalty-b.2"]
     assert {name for name, *_ in units} == {
         *(f"penalty-{p}.{i}" for p in "abcd" for i in (1, 2)), "penalty-fig3"}
-    # Figure 3's slack (0, 0) is panel (a)'s first run: trained once, by (a)'s unit.
-    assert [xs for name, *_, xs in units if name == "penalty-fig3"] == [[100.0]]
+    # Figure 3 trains longer than panel (a): its slack (0, 0) is its own run.
+    assert [xs for name, *_, xs in units if name == "penalty-fig3"] == [[0.0, 100.0]]
     sources = settings.sources()
-    assert sources["penalty-fig3"] == [("penalty-a.1", [0], False), ("penalty-fig3", [0], True)]
+    assert sources["penalty-fig3"] == [("penalty-fig3", [0, 1], True)]
     assert sources["penalty-b"] == [("penalty-b.1", [0, 1, 2, 3], True),
                                     ("penalty-b.2", [0, 1, 2, 3], True)]
     for job, form, panel, xs in settings.jobs():  # every run of a job, in order, is trained
@@ -89,9 +90,12 @@ def test_units_train_every_run_once_cut_evenly_costliest_first():
     for c in cost:
         loads[loads.index(min(loads))] += c
     assert max(loads) - min(loads) <= max(cost) / 2
-    # Other budgets for (a) and Figure 3: nothing shared.
-    apart = replace(settings, shares={**settings.shares, "fig3": 0.9})
-    assert [xs for name, *_, xs in apart.units() if name == "penalty-fig3"] == [[0.0, 100.0]]
+    # The same budget for (a) and Figure 3: Figure 3's slack (0, 0) is panel (a)'s first
+    # run, trained once, by (a)'s unit.
+    shared = replace(settings, shares={**settings.shares, "fig3": settings.shares["a"]})
+    assert [xs for name, *_, xs in shared.units() if name == "penalty-fig3"] == [[100.0]]
+    assert shared.sources()["penalty-fig3"] == [("penalty-a.1", [0], False),
+                                                ("penalty-fig3", [0], True)]
 
 
 def test_a_panels_record_is_its_runs_along_the_slack_axis_wherever_they_trained():
@@ -192,8 +196,10 @@ def test_the_constraint_flag_picks_the_forms(tmp_path, monkeypatch, flag, forms)
 
 def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path):
     """Finished panels are found by form and panel; the rest is queued, and the
-    progress starts where the directory is."""
-    settings = replace(Settings.quick(), forms=FORMS)
+    progress starts where the directory is (Figure 3 on panel (a)'s budget: sharing
+    its first run)."""
+    quick = Settings.quick()
+    settings = replace(quick, forms=FORMS, shares={**quick.shares, "fig3": quick.shares["a"]})
     out = tmp_path / "repro"
     queued, seen = [], []
 

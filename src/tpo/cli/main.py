@@ -581,7 +581,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--slacks", help="slack values of the x-axis (default 0,1,2,5,10,20,50,100)")
     p.add_argument("--seeds", type=int, help="number of seeds (default 5; at most 1000)")
     p.add_argument("--steps", type=int,
-                   help="env steps per run of a panel of full share (default 1,500,000; "
+                   help="env steps per run of a panel of full share (default 1,000,000; "
                         "each panel's runs train its share: docs/reproduce.md)")
     add_backend_options(p)
     p.add_argument("--constraint", choices=(*FORMS, "both", "all"),
