@@ -150,6 +150,8 @@ def test_auto_observation_adds_the_cell_up_to_a_size():
 def test_unknown_observation_is_an_error():
     with pytest.raises(MapError, match="unknown observation 'pixels'"):
         GridNav(parse_map(TINY), observation="pixels")
+    with pytest.raises(MapError, match="unknown observation None; choose one of auto, "):
+        GridNav(parse_map(TINY), observation=None)
 
 
 @pytest.mark.parametrize("slip", [0.0, 0.2])

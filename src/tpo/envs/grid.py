@@ -77,7 +77,7 @@ def observation_kind(navmap: NavMap, kind: str) -> str:
     """``kind``, with ``"auto"`` resolved for ``navmap`` (module docstring)."""
     if kind == "auto":
         return "factored+onehot" if (~navmap.walls).sum() <= ONEHOT_CELLS else "factored"
-    if kind not in OBSERVATIONS:
+    if not isinstance(kind, str) or kind not in OBSERVATIONS:
         raise MapError(f"unknown observation {kind!r:.40}; choose one of auto, "
                        f"{', '.join(OBSERVATIONS)}")
     return kind

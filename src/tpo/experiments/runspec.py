@@ -28,6 +28,7 @@ DEFAULT_STEPS = {"grid": 1_000_000, "continuous": 4_000_000}
 #: a run's observation when none is given, by dynamics (tpo.envs.grid's "auto":
 #: the factored numbers and the free cell's one-hot up to ONEHOT_CELLS free cells)
 DEFAULT_OBSERVATION = {"grid": "auto", "continuous": "factored"}
+# tpo.envs.grid's and "auto" (not imported: no JAX here)
 OBSERVATIONS = ("auto", "factored", "onehot", "coords", "factored+onehot")
 
 
