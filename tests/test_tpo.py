@@ -107,11 +107,12 @@ def test_evaluate_reports_mc_exact_and_lar(model):
 
 
 def test_predict_checks_shapes_and_needs_parameters(model):
-    with pytest.raises(TPOError, match=r"expected \[\.\.\., 27\]"):
+    # small's observation: 8 rows + 13 columns + 4 walls + 2 flags + 44 free cells
+    with pytest.raises(TPOError, match=r"expected \[\.\.\., 71\]"):
         model.predict(np.zeros(3))
     with pytest.raises(TPOError, match=r"call learn\(\) or TPO\.load\(\)"):
-        TPO("small", "goal").predict(np.zeros(27))
-    assert model.predict(np.zeros(27)).shape == ()
+        TPO("small", "goal").predict(np.zeros(71))
+    assert model.predict(np.zeros(71)).shape == ()
 
 
 def test_load_rejects_a_folder_that_is_not_a_model(tmp_path):
