@@ -117,7 +117,7 @@ class GridNav(JaxEnv):
         slip_matrix(slip)  # validates
         self.navmap = navmap
         self.observation = observation_kind(navmap, observation)
-        table = observation_table(navmap, observation)
+        table = observation_table(navmap, self.observation)
         steps = check_max_steps(navmap.max_steps if max_steps is None else max_steps)
         self.random_start = random_start
         self.action_space = gym.spaces.Discrete(len(MOVES))
