@@ -277,6 +277,27 @@ def test_a_continuous_run_takes_the_continuous_budget_unless_told():
     assert RunSpec.from_settings({}).steps == RunSpec().steps == 1_000_000
 
 
+def test_a_grid_run_trains_a_population_unless_told_and_old_runs_keep_one(tmp_path, capsys):
+    from tpo.experiments.runspec import RunSpec
+
+    assert RunSpec.from_settings({}).population == RunSpec().population == 4
+    assert RunSpec.from_settings({"dynamics": "continuous"}).population == 1
+    assert RunSpec.from_settings({"env": "mo-gymnasium:deep-sea-treasure-v0",
+                                  "objectives": "treasure,time"}).population == 1
+    assert RunSpec.from_settings({}, saved=True).population == 1  # a run written before
+    assert "population = 2" in RunSpec.from_settings({"population": 2}).to_toml()
+    for args, message in [
+            (["--map", "small", "--population", "0"], "population must be from 1 to 64, got 0"),
+            (["--map", "small", "--population", "x"], "bad --population 'x': expected int"),
+            (["--env", "mo-gymnasium:deep-sea-treasure-v0", "--objectives", "treasure,time",
+              "--dag", "treasure>time", "--population", "2"],
+             "a population needs a JAX env (a map), not a Gymnasium env")]:
+        assert main(["train", *args, "--out", str(tmp_path / "x")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "x").exists()
+
+
 def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     """Velocity actions take a factorised categorical of 5 values per dimension with a
     categorical's other defaults unless told otherwise; heading actions keep the

@@ -119,11 +119,12 @@ def test_an_edited_config_is_refused_on_resume_naming_the_keys(stopped, tmp_path
     run = _copy(stopped, tmp_path)
     config = run / "config.toml"
     text = config.read_text()
+    population = next(line for line in text.splitlines() if line.startswith("population"))
     config.write_text(text.replace("learning_rate = 0.001", "learning_rate = 0.01")
-                      .replace("seed = 0", "seed = 3"))
+                      .replace("seed = 0", "seed = 3").replace(population, "population = 5"))
     before = (run / "metrics.csv").read_text()
     assert main(["train", "--resume", str(run), "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "differs from the run's checkpoint in learning_rate, seed" \
-        in err, err
+    assert err.count("\n") == 1 and \
+        "differs from the run's checkpoint in learning_rate, seed, population" in err, err
     assert (run / "metrics.csv").read_text() == before

@@ -11,7 +11,7 @@ from tpo.algo import TPO
 from tpo.algo.config import TPOConfig
 from tpo.algo.evaluate import episode_returns
 from tpo.algo.persist import restore_state
-from tpo.algo.selection import choose
+from tpo.algo.selection import choose, choose_member
 from tpo.algo.train import SELECT_EPISODES, Trainer
 from tpo.envs import OBJECTIVES, load_map
 from tpo.envs.grid import GridNav
@@ -130,6 +130,23 @@ def test_finish_answers_with_the_chosen_snapshot_once_and_for_all(three_phases):
     assert kept.params["actor"] is state.params["actor"]
 
 
+def test_a_population_answers_with_the_member_and_snapshot_its_returns_pick(three_phases):
+    env, trainer, state, _ = three_phases
+    slack = trainer.slack_array()
+    # Two members: the fixture's, and one whose snapshots come in reverse order.
+    other = state.replace(snapshots=jax.tree.map(lambda x: x[::-1], state.snapshots),
+                          update=state.update + 1)
+    states = jax.tree.map(lambda *x: jnp.stack(x), state, other)
+    done = jax.jit(trainer.finish_population, static_argnums=2)(states, slack, env)
+    returns, penalty = jax.vmap(lambda s: trainer.candidates(s, slack, env))(states)
+    picks = jax.vmap(lambda r, p: trainer.pick(slack, r, p))(returns, penalty)
+    m = int(choose_member(returns, picks, [(0, 1), (1, 2)], slack / 0.01, ORDER))
+    assert int(done.update) == m  # the chosen member's own state ...
+    snapshot = jax.tree.map(lambda x: x[m, int(picks[m])], states.snapshots)
+    assert jax.tree.all(jax.tree.map(jnp.array_equal, snapshot, done.params["actor"]))
+    # ... acting with its answer.
+
+
 def test_every_phase_leaves_its_final_actor_in_the_snapshots():
     env = GridNav(load_map("small"), random_start=True)
     graph = ObjectiveGraph.parse("M>A>G", [5, 5], objectives=OBJECTIVES)
@@ -178,3 +195,50 @@ def test_a_gymnasium_env_s_run_is_finished_on_the_host_alike():
     mc = runner.monte_carlo(acting, 6, True, trainer.config.gamma, 0)["discounted"]
     # phases (treasure, time) are the env's reward columns (treasure, time)
     np.testing.assert_allclose(returns, mc.mean(0), rtol=1e-5, atol=1e-5)
+
+
+# choose_member: a population's answers, M>A>G at (100, 0) on held2 (numbers from a
+# run: the goal phase's policy of member 0 crosses one wet cell, avoid -0.9).
+EDGES = [(0, 1), (1, 2)]  # monitor -> avoid, avoid -> goal
+MEMBERS = [[[76.1, -3.7, -86.6], [0.0, 0.0, -86.6], [0.0, -0.9, -20.6]],
+           [[76.1, -3.7, -86.6], [0.0, 0.0, -86.6], [0.0, 0.0, -25.3]]]
+
+
+def member(returns, picks, allowance):
+    return int(choose_member(jnp.array(returns, jnp.float32), jnp.array(picks),
+                             EDGES, jnp.array(allowance, jnp.float32), ORDER))
+
+
+def test_a_member_that_loses_a_zero_slack_parent_s_best_does_not_answer():
+    # The best avoid of any policy that keeps the monitor within 100 is 0; at zero
+    # slack the answer must keep it (within the judge's 0.5), whatever its goal.
+    assert member(MEMBERS, [2, 2], [100.0, 0.0]) == 1
+    # With slack on avoid -> goal, the better goal answers.
+    assert member(MEMBERS, [2, 2], [100.0, 1.0]) == 0
+    # The allowance is the start value's: a local slack over 1 - gamma.
+    assert member(MEMBERS, [2, 2], [100.0, 0.4]) == 0
+
+
+def test_the_best_parent_value_comes_from_every_candidate_keeping_its_own_edges():
+    # With no slack on monitor -> avoid, only policies keeping the monitor at 76.1
+    # count for the avoid's best (-3.7): both answers keep it, so the goal decides.
+    weak = [[[76.1, -3.7, -86.6], [0.0, 0.0, -86.6], [76.1, -3.7, -30.0]],
+            [[76.1, -3.7, -86.6], [0.0, 0.0, -86.6], [76.1, -3.7, -40.0]]]
+    assert member(weak, [2, 2], [0.0, 0.0]) == 0
+    # An answer that loses the root's best is no answer while another keeps it.
+    weak[0][2][0] = 70.0
+    assert member(weak, [2, 2], [0.0, 0.0]) == 1
+
+
+def test_members_tie_as_the_judge_does_and_none_keeping_the_edges_falls_back():
+    both_wet = [MEMBERS[0], MEMBERS[0][:2] + [[0.0, -0.9, -21.0]]]
+    # Neither keeps the avoid's 0: the better goal answers (-20.6 against -21.0).
+    assert member(both_wet, [2, 2], [100.0, 0.0]) == 0
+    # Goals within 2 %: the monitor, then the avoid decide, roots first; then the first.
+    tied = [[[0.0] * 3, [0.0] * 3, [1.0, -1.0, -25.0]], [[0.0] * 3, [0.0] * 3, [1.0, 0.0, -25.3]]]
+    assert member(tied, [2, 2], [100.0, 100.0]) == 1
+    assert member([tied[0], tied[0]], [2, 2], [100.0, 100.0]) == 0
+    # A member's answer is the candidate its pick names: member 1's avoid policy keeps
+    # the avoid's 0 where member 0's answer does not.
+    assert member(MEMBERS, [2, 1], [100.0, 0.0]) == 1
+    assert member(MEMBERS, [2, 1], [100.0, 1.0]) == 0

@@ -131,3 +131,62 @@ def test_non_finite_training_stops_naming_phase_and_update_and_keeps_the_good_st
                                              r"update 3; the last good state \(update 2\)"):
         model.resume(chunk_updates=2)
     assert int(model.state.update) == 2
+
+
+def test_a_population_trains_its_members_at_once_and_answers_with_one(tmp_path):
+    total = 8 * 32 * 12  # 4 updates per phase
+    seen = []
+
+    def callback(metrics, done):
+        seen.append((done, model.stacked, metrics["phase"].shape))
+        if done == 4:
+            model.save(tmp_path / "mid")
+
+    model = TPO("small", "M>A>G", slack=[100, 0], config=CONFIG, seed=5, population=3)
+    model.learn(total, callback, chunk_updates=4)
+    # While training the state holds 3 members (metrics: their mean per update); the
+    # chunk that ends the run answers with one of them.
+    assert seen == [(4, True, (4,)), (8, True, (4,)), (12, False, (4,))]
+    assert np.ndim(model.state.update) == 0 and model.finished
+    assert model.num_timesteps == total  # steps of each member
+    mid = TPO.load(tmp_path / "mid")
+    assert mid.population == 3 and mid.stacked and mid.updates_done == 4
+    assert mid.predict(np.zeros(mid.env.obs_shape)).shape == ()  # its first member acts
+    resumed = mid.resume(chunk_updates=4)
+    same = jax.tree.map(lambda a, b: bool(np.array_equal(a, b)),
+                        jax.tree.leaves(model.state.params),
+                        jax.tree.leaves(resumed.state.params))
+    assert all(same)
+    saved = TPO.load(model.save(tmp_path / "done"))
+    assert saved.population == 3 and not saved.stacked
+    assert json.loads((tmp_path / "done" / "model.json").read_text())["population"] == 3
+
+
+@pytest.mark.parametrize("bad", [0, 65, True, 2.0])
+def test_a_bad_population_is_one_line(bad):
+    with pytest.raises(TPOError, match="population must be an integer from 1 to 64"):
+        TPO("small", "goal", config=CONFIG, population=bad)
+
+
+def test_model_json_s_population_is_checked_and_a_model_without_it_is_one_learner(
+        model, tmp_path):
+    path = model.save(tmp_path / "run")
+    meta = json.loads((path / "model.json").read_text())
+    assert meta["population"] == 1
+    del meta["population"]  # saved before populations
+    (path / "model.json").write_text(json.dumps(meta))
+    assert TPO.load(path).population == 1
+    for bad in (0, True, "4"):
+        (path / "model.json").write_text(json.dumps({**meta, "population": bad}))
+        with pytest.raises(TPOError, match=r"model\.json: population must be an integer >= 1"):
+            TPO.load(path)
+
+
+def test_a_continuous_robot_s_population_answers_with_one_member():
+    from tpo.envs import ContinuousNav, load_map
+
+    env = ContinuousNav(load_map("small"), random_start=True)
+    config = TPOConfig.defaults("discretized", continuous=True, num_envs=8, num_steps=32)
+    model = TPO(env, "M>A>G", slack=[100, 0], config=config, population=2).learn(8 * 32 * 6)
+    assert model.finished and not model.stacked
+    assert model.predict(np.zeros(env.obs_shape)).shape == (2,)  # a velocity

@@ -48,6 +48,7 @@ CONTINUOUS_DEFAULTS = {"telescope": "all", "advantage": "immediate", "tie_critic
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
+MAX_POPULATION = 64  # learners of one model (tpo.algo.TPO), each with a lone run's memory
 
 
 class ConfigError(TPOError):

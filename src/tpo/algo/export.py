@@ -34,7 +34,7 @@ ONNX_OPSET = 13
 def actor_arrays(model: TPO) -> dict[str, np.ndarray]:
     """The actor's parameters as ``float32`` arrays named ``layer_<i>/kernel`` … ``out/bias``
     (and ``log_std``)."""
-    state = model._need_state()
+    state = model.member(0)  # a population still training: its first member
     trainer = model._need_trainer()
     if trainer.restricts:
         raise TPOError("a restriction-form policy acts through its critics' admissible "

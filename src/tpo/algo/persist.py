@@ -109,7 +109,11 @@ def check_meta(meta: dict[str, Any]) -> None:
     the wrong type, of a saved model's ``model.json``."""
     from tpo.envs.spec import check_spec
 
-    check_table(meta, META_KEYS, "model.json")
+    check_table(meta, META_KEYS, "model.json", also=("population",))
+    population = meta.get("population", 1)  # a model saved without it: one learner
+    if isinstance(population, bool) or not isinstance(population, int) or population < 1:
+        raise TPOError(f"model.json: population must be an integer >= 1, got "
+                       f"{population!r:.60}")
     negative = [k for k, kind in META_KEYS.items() if kind is int and meta[k] < 0]
     if negative:
         raise TPOError(f"model.json: {negative[0]} must be >= 0, got {meta[negative[0]]}")

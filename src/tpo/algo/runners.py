@@ -24,19 +24,28 @@ from tpo.envs.gym_adapter import EnvError, HostEnv
 Runner = Callable[[TrainState, jax.Array, int, int], tuple[TrainState, dict]]
 
 
-def jax_runner(trainer: Trainer, task: Any = None) -> Runner:
+def jax_runner(trainer: Trainer, task: Any = None, population: bool = False) -> Runner:
     """``n`` updates by one jitted program per ``length`` (so a run's shorter last
     chunk compiles nothing new); metrics of the ``n`` updates. The chunk that ends
     the run also finishes it (:meth:`Trainer.finish` on the JAX env ``task``, by
-    default the training env)."""
-    chunk = jax.jit(trainer.run_chunk, static_argnums=3)
-    finish = jax.jit(partial(trainer.finish, env=task))
+    default the training env). With ``population``, the state is a population's
+    members stacked ``[M, ...]``, trained vmapped (metrics ``[M, n, ...]``), and
+    finishing answers with one member (:meth:`Trainer.finish_population`)."""
+    if population:
+        def run_chunk(states: TrainState, slack: jax.Array, n: jax.Array, length: int):
+            return jax.vmap(lambda s: trainer.run_chunk(s, slack, n, length))(states)
+
+        chunk = jax.jit(run_chunk, static_argnums=3)
+        finish = jax.jit(partial(trainer.finish_population, env=task))
+    else:
+        chunk = jax.jit(trainer.run_chunk, static_argnums=3)
+        finish = jax.jit(partial(trainer.finish, env=task))
 
     def run(state: TrainState, slack: jax.Array, n: int, length: int):
         state, rows = chunk(state, slack, jnp.int32(n), length)
-        if int(state.update) >= trainer.num_updates:
+        if int(np.min(state.update)) >= trainer.num_updates:
             state = finish(state, slack)
-        return state, jax.tree.map(lambda x: x[:n], rows)
+        return state, jax.tree.map(lambda x: x[:, :n] if population else x[:n], rows)
 
     return run
 

@@ -7,6 +7,9 @@ ancestors, roots first. The policies the ancestors' own phases ended with are
 often exactly that completion (measured in docs/notes/tpo-learning.md), so the
 run ends by choosing among the phases' final policies, judged by their greedy
 Monte Carlo returns: the tie rule, applied to the candidates the run already has.
+A population of independent learners (:class:`tpo.algo.TPO`'s ``population``)
+then answers with the member whose answer LAR's own rule prefers, judged on the
+same returns (:func:`choose_member`).
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     (:func:`tpo.tabular.judge.tolerance`).
     """
     n = returns.shape[0]
-    tolerance = jnp.maximum(REL_TOL * jnp.abs(returns[-1]), ABS_TOL)
+    tolerance = _tolerance(returns[-1])
     own = jnp.diagonal(returns) >= returns[-1] - tolerance
     keep = own & (penalty <= penalty[-1] + penalty_tolerance)
     if held is not None:  # lexicographically no worse on the held objectives
@@ -57,6 +60,51 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
         best = jnp.max(jnp.where(keep, returns[:, p], -jnp.inf))
         keep = keep & (returns[:, p] >= best - tolerance[p])
     return jnp.max(jnp.where(keep, jnp.arange(n), -1))
+
+
+def choose_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[int, int]],
+                  allowance: jax.Array, order: Sequence[int]) -> jax.Array:
+    """The index of the answering member of a population, by LAR's rule on their returns.
+
+    ``returns [M, N, P]``: member ``m``'s candidate ``n``'s return of phase ``p``'s
+    objective (the objectives' phases first, in topological order); ``picks [M]``:
+    each member's own answer (:func:`choose`). ``edges``: every edge of the graph
+    as ``(parent, child)`` phases; ``allowance [E]``: the most each edge lets the
+    child lose of the parent's value at the start (a local slack ``eta`` allows
+    ``eta / (1 - gamma)``). Taking the objectives in topological order, the best
+    value of ``w`` is the largest return of ``w`` among *all* candidates (every
+    member's every phase) that keep ``w``'s ancestral edges, and a policy keeps an
+    edge ``(w, v)`` when its return of ``w`` is at least that best less the
+    allowance and the judge's tolerance. Among the answers that keep the leaf's
+    ancestral edges (all of them if none does), the best on ``order`` (the leaf
+    first, then its ancestors roots first), ties as in :func:`choose`; the first
+    such member.
+    """
+    m, n = returns.shape[:2]
+    pool = returns.reshape(m * n, -1)
+    answers = returns[jnp.arange(m), picks]
+    objectives = max(order) + 1
+    in_pool, in_answers, best = [], [], []
+    for v in range(objectives):
+        keep_pool, keep_answers = jnp.ones(m * n, bool), jnp.ones(m, bool)
+        for e, (w, child) in enumerate(edges):
+            if child == v:
+                floor = best[w] - allowance[e] - _tolerance(best[w])
+                keep_pool = keep_pool & in_pool[w] & (pool[:, w] >= floor)
+                keep_answers = keep_answers & in_answers[w] & (answers[:, w] >= floor)
+        in_pool.append(keep_pool)
+        in_answers.append(keep_answers)
+        best.append(jnp.max(jnp.where(keep_pool, pool[:, v], -jnp.inf)))
+    keep = in_answers[-1] | ~in_answers[-1].any()
+    for p in order:
+        top = jnp.max(jnp.where(keep, answers[:, p], -jnp.inf))
+        keep = keep & (answers[:, p] >= top - _tolerance(top))
+    return jnp.argmax(keep)
+
+
+def _tolerance(value: jax.Array) -> jax.Array:
+    """The judge's tolerance around ``value``: 2 %, or 0.5."""
+    return jnp.maximum(REL_TOL * jnp.abs(value), ABS_TOL)
 
 
 def stack_snapshot(snapshots: dict, phase: jax.Array, actor: dict) -> dict:

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tpo.algo.config import TPOConfig
+from tpo.algo.config import MAX_POPULATION, TPOConfig
 from tpo.algo.evaluate import exact_evaluation, monte_carlo, reference_evaluation, summarize
 from tpo.algo.guard import check_finite
 from tpo.algo.persist import read_model, restore_state, save_model
@@ -50,12 +50,22 @@ class TPO:
             state's too).
         seed: PRNG seed of the parameters, the run and a Gymnasium env's resets.
         objectives: names of a Gymnasium env's reward components, in order.
+        population: independent learners trained at once (one program, vmapped; a
+            JAX env only), each on ``total_timesteps`` steps; the model answers with
+            the one whose policy LAR's rule prefers on their greedy Monte Carlo
+            returns (:meth:`Trainer.finish_population`). Member 0 is seeded as a
+            lone learner is.
     """
 
     def __init__(self, env: Env | str | gym.Env | gym.vector.VectorEnv | EnvFactory,
                  graph: ObjectiveGraph | str, slack: float | list[float] = 0.0,
                  config: TPOConfig | None = None, seed: int = 0,
-                 objectives: Sequence[str] | None = None) -> None:
+                 objectives: Sequence[str] | None = None, population: int = 1) -> None:
+        if isinstance(population, bool) or not isinstance(population, int) \
+                or not 1 <= population <= MAX_POPULATION:
+            raise TPOError(f"population must be an integer from 1 to {MAX_POPULATION}, "
+                           f"got {population!r:.60}")
+        self.population = population
         self.config = config or TPOConfig()
         self.env = env = make_env(env, objectives, self.config.num_envs)
         if config is None:
@@ -65,6 +75,8 @@ class TPO:
                     np.isfinite(env.action_space.high))
                 kind = "discretized" if bounded else "gaussian"
             self.config = TPOConfig.defaults(kind, continuous=isinstance(env, ContinuousNav))
+        if self.host and population > 1:
+            raise TPOError("a population needs a JAX env (a map), not a Gymnasium env")
         if self.host and env.num_envs != self.config.num_envs:  # a vector env's copies
             self.config = dataclasses.replace(self.config, num_envs=env.num_envs)
         self.eval_env = None if self.host else from_spec(env.to_spec(), evaluation=True)
@@ -93,7 +105,18 @@ class TPO:
     def finished(self) -> bool:
         """Whether the current training program has run all its updates."""
         return self.state is not None and self.trainer is not None and \
-            int(self.state.update) >= self.trainer.num_updates
+            self.updates_done >= self.trainer.num_updates
+
+    @property
+    def updates_done(self) -> int:
+        """Updates of the current training program done (by every member)."""
+        return int(np.min(self._need_state().update))
+
+    @property
+    def stacked(self) -> bool:
+        """Whether the state holds the population's members (``[M, ...]``), as during
+        training; once finished it holds the answer alone."""
+        return self.state is not None and np.ndim(self.state.update) == 1
 
     # ----------------------------------------------------------------- train
     def learn(self, total_timesteps: int, callback: Callback | None = None,
@@ -108,11 +131,15 @@ class TPO:
         (:meth:`resume` continues it).
         """
         trainer = Trainer(self.env, self.graph, self.config, total_timesteps)
-        params = None if self.state is None else self.state.params
         obs = self.env.reset(self.seed) if self.host else None
-        state = trainer.init(jax.random.key(self.seed), params, obs)
-        if self.state is not None:
-            state = state.replace(value_norm=self.state.value_norm)
+        members = []
+        for m in range(self.population):
+            key = jax.random.key(self.seed)
+            key = jax.random.fold_in(key, m) if m else key
+            old = None if self.state is None else self.member(m)
+            state = trainer.init(key, None if old is None else old.params, obs)
+            members.append(state if old is None else state.replace(value_norm=old.value_norm))
+        state = members[0] if self.population == 1 else _stack(members)
         self.trainer, self.state, self._run = trainer, state, None
         return self.resume(callback, chunk_updates)
 
@@ -129,14 +156,16 @@ class TPO:
             self._fresh_env = False
         if self._run is None:
             self._run = (HostRunner(trainer, self.env) if self.host
-                         else jax_runner(trainer, self.eval_env))
+                         else jax_runner(trainer, self.eval_env, self.stacked))
         slack = trainer.slack_array()
-        done = int(state.update)
+        done = self.updates_done
         while done < trainer.num_updates:
             n = min(chunk_updates - done % chunk_updates, trainer.num_updates - done)
             new_state, metrics = self._run(state, slack, n,
                                            min(chunk_updates, trainer.num_updates))
             metrics = jax.tree.map(np.asarray, metrics)
+            if self.stacked:  # the members' mean (the phase is every member's)
+                metrics = {k: v.mean(0).astype(v.dtype) for k, v in metrics.items()}
             check_finite(new_state.params, metrics, done, trainer.problem.phase_names)
             state, done = new_state, done + n
             self.state = state
@@ -150,6 +179,11 @@ class TPO:
             raise TPOError("the model has no parameters yet: call learn() or TPO.load()")
         return self.state
 
+    def member(self, m: int) -> TrainState:
+        """Member ``m``'s state while the population trains; the state once finished."""
+        state = self._need_state()
+        return jax.tree.map(lambda x: x[m], state) if self.stacked else state
+
     def _need_trainer(self) -> Trainer:
         if self.trainer is None:
             raise TPOError("the model has no training program yet: call learn() or TPO.load()")
@@ -160,14 +194,14 @@ class TPO:
                 key: jax.Array | None = None) -> np.ndarray:
         """Actions for a single observation ``[D]`` or a batch ``[N, D]`` (for a
         Gymnasium env, also one observation as the env returns it)."""
-        state, trainer = self._need_state(), self._need_trainer()
+        trainer = self._need_trainer()
         if self.host and np.shape(obs)[-1:] != tuple(self.env.obs_shape):
             obs = self.env.encode(obs)
         obs = jnp.asarray(obs, jnp.float32)
         if obs.shape[-1:] != tuple(self.env.obs_shape):
             raise TPOError(f"observation has shape {tuple(obs.shape)}, expected "
                            f"[..., {self.env.obs_shape[0]}]")
-        pi = trainer.policy(trainer.acting(state, trainer.slack_array()), obs)
+        pi = trainer.policy(trainer.acting(self.member(0), trainer.slack_array()), obs)
         if deterministic:
             return np.asarray(pi.mode())
         return np.asarray(pi.sample(jax.random.key(0) if key is None else key))
@@ -180,9 +214,9 @@ class TPO:
         ``lar_correct``, ``strict`` and ``same_values``; for the continuous env, the
         judgement against its finite reference
         (:func:`tpo.algo.evaluate.reference_evaluation`)."""
-        state, trainer = self._need_state(), self._need_trainer()
+        trainer = self._need_trainer()
         gamma, objectives = self.config.gamma, self.env.objectives
-        acting = trainer.acting(state, trainer.slack_array())
+        acting = trainer.acting(self.member(0), trainer.slack_array())
         if self.host and self.eval_env is None:
             self.eval_env = self.env.copy(min(episodes, self.config.num_envs))
         result: dict[str, Any] = {"mc": {}}
@@ -213,7 +247,8 @@ class TPO:
         meta = {"config": self.config.to_dict(), "dag": self.graph.spec,
                 "slack": list(self.graph.slacks), "env": self.env.to_spec(),
                 "seed": self.seed, "num_timesteps": self.num_timesteps,
-                "total_timesteps": trainer.total_timesteps, "updates_done": int(state.update),
+                "total_timesteps": trainer.total_timesteps, "updates_done": self.updates_done,
+                "population": self.population,
                 "num_updates": trainer.num_updates}
         return save_model(path, meta, state, overwrite)
 
@@ -229,12 +264,16 @@ class TPO:
         meta, blob = read_model(path)
         config = TPOConfig.from_saved(meta["config"])
         env = from_spec(meta["env"], num_envs=config.num_envs, trust_module=trust_env_module)
-        model = cls(env, meta["dag"], meta["slack"], config, meta["seed"])
+        population = meta.get("population", 1)
+        model = cls(env, meta["dag"], meta["slack"], config, meta["seed"],
+                    population=population)
         model._fresh_env = model.host
         model.trainer = Trainer(model.env, model.graph, model.config, meta["total_timesteps"])
         blank = (np.zeros((config.num_envs, *model.env.obs_shape), np.float32) if model.host
                  else None)
         template = model.trainer.init(jax.random.key(0), obs=blank)
+        if population > 1 and meta["updates_done"] < meta["num_updates"]:
+            template = _stack([template] * population)  # the members, still training
         try:
             model.state = restore_state(template, blob)[0]
         except ValueError as err:
@@ -242,3 +281,9 @@ class TPO:
                            f"model.json: {err}") from None
         model.num_timesteps = meta["num_timesteps"]
         return model
+
+
+@jax.jit
+def _stack(states: list[TrainState]) -> TrainState:
+    """The members' states stacked ``[M, ...]`` (one program, not one per leaf)."""
+    return jax.tree.map(lambda *x: jnp.stack(x), *states)

@@ -57,7 +57,7 @@ from tpo.algo.networks import (
     scale_output,
 )
 from tpo.algo.phases import Acting, Problem, reward_ranges
-from tpo.algo.selection import choose, stack_snapshot
+from tpo.algo.selection import choose, choose_member, stack_snapshot
 from tpo.graph import ObjectiveGraph
 
 MAX_UPDATES = 2**31 - 1  # the update counter is an int32
@@ -563,18 +563,52 @@ class Trainer:
 
     def answer(self, state: TrainState, slack: jax.Array, returns: jax.Array,
                penalty: jax.Array) -> TrainState:
-        """``state`` acting with the snapshot that :func:`tpo.algo.selection.choose`
-        picks from the candidates' ``returns [P, P]`` and ``penalty [P]``, holding the
-        parents of the leaf's constraints at zero ``slack``."""
+        """``state`` acting with the snapshot that :meth:`pick` picks."""
+        return self._acting_with(state, self.pick(slack, returns, penalty))
+
+    def pick(self, slack: jax.Array, returns: jax.Array, penalty: jax.Array) -> jax.Array:
+        """The snapshot that :func:`tpo.algo.selection.choose` picks from the
+        candidates' ``returns [P, P]`` and ``penalty [P]``, holding the parents of the
+        leaf's constraints at zero ``slack``."""
         prob = self.problem
-        leaf = len(prob.graph.order) - 1
+        leaf = self.leaf_phase
         ranges = reward_ranges(self.env.reward_low, self.env.reward_high)[prob.reward]
         zero = (prob.constraint_slacks(slack) <= 0) & (jnp.asarray(prob.active[leaf]) > 0)
         held = jnp.zeros(prob.n_phases, bool).at[jnp.asarray(prob.head)].max(zero)
-        pick = choose(returns, penalty, [leaf, *range(leaf)],
+        return choose(returns, penalty, [leaf, *range(leaf)],
                       SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)), held)
-        actor = jax.tree.map(lambda s: s[pick], state.snapshots)
+
+    @property
+    def leaf_phase(self) -> int:
+        """The leaf objective's phase."""
+        return len(self.problem.graph.order) - 1
+
+    @staticmethod
+    def _acting_with(state: TrainState, snapshot: jax.Array) -> TrainState:
+        """``state`` with its actor replaced by its phase ``snapshot``'s."""
+        actor = jax.tree.map(lambda s: s[snapshot], state.snapshots)
         return state.replace(params={**state.params, "actor": actor})
+
+    def finish_population(self, states: TrainState, slack: jax.Array, env: Any = None
+                          ) -> TrainState:
+        """The answer of a population of finished runs, ``states`` stacked ``[M, ...]``:
+        every member's answer (:meth:`finish`, or its own policy without
+        ``config.select``), then the member that
+        :func:`tpo.algo.selection.choose_member` picks by LAR's rule on every
+        candidate's greedy returns; one state (that member's, acting with its
+        answer)."""
+        env = self.env if env is None else env
+        returns, penalty = jax.vmap(lambda s: self.candidates(s, slack, env))(states)
+        last = self.problem.n_phases - 1
+        picks = (jax.vmap(partial(self.pick, slack))(returns, penalty) if self.selects
+                 else jnp.full(returns.shape[0], last))
+        graph = self.problem.graph
+        phase = {name: i for i, name in enumerate(graph.order)}
+        edges = [(phase[e.parent], phase[e.child]) for e in graph.edges]
+        allowance = jnp.asarray(slack, jnp.float32) / (1 - self.config.gamma)
+        member = choose_member(returns, picks, edges, allowance,
+                               [self.leaf_phase, *range(self.leaf_phase)])
+        return self._acting_with(jax.tree.map(lambda x: x[member], states), picks[member])
 
     def candidates(self, state: TrainState, slack: jax.Array, env: Any
                    ) -> tuple[jax.Array, jax.Array]:
@@ -595,7 +629,7 @@ class Trainer:
               ) -> tuple[jax.Array, jax.Array]:
         """A candidate's mean discounted return of every phase's objective ``[P]`` and
         mean discounted penalty of the leaf's constraints ``[]`` over its episodes."""
-        leaf = jnp.int32(len(self.problem.graph.order) - 1)
+        leaf = jnp.int32(self.leaf_phase)
         # The critics see every step at once (one batched call, not one per step).
         value, next_value = self.values(state, jnp.stack([ep.obs, ep.next_obs]))[..., 0]
         rewards, *_, penalty = self.constraint_terms(

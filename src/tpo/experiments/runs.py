@@ -262,6 +262,7 @@ def _check_unchanged(spec: RunSpec, fresh: TPO, saved: TPO, run_dir: Path) -> No
     changed = [k for k in ours if ours[k] != theirs.get(k)]
     pairs = {"dag": (fresh.graph.spec, saved.graph.spec),
              "slack": (fresh.graph.slacks, saved.graph.slacks), "seed": (fresh.seed, saved.seed),
+             "population": (fresh.population, saved.population),
              "steps": (spec.steps, saved.trainer.total_timesteps),
              "map/env": (fresh.env.to_spec(), saved.env.to_spec())}
     changed += [k for k, (a, b) in pairs.items() if a != b]
@@ -299,7 +300,7 @@ def _train(run_dir: Path, episodes: int, progress: Progress | None, chunk_update
         fresh, model = model, _newest_good(saved, trust_module)
         _check_unchanged(spec, fresh, model, run_dir)
     log = MetricsLog(run_dir, model.env.objectives, model.phases, spec.config.batch_size,
-                     int(model.state.update) if saved else 0)
+                     model.updates_done if saved else 0)
 
     def on_chunk(metrics: dict[str, np.ndarray], done: int) -> None:
         log.write(metrics, done)

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import tomli_w
 
-from tpo.algo.config import TPOConfig
+from tpo.algo.config import MAX_POPULATION, TPOConfig
 from tpo.errors import TPOError
 
 if TYPE_CHECKING:
@@ -25,6 +25,8 @@ ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: n
 #: moves half a cell a step, and its zero-slack phases need twice the grid's steps a
 #: phase to trace the reference's path (docs/notes/tpo-learning.md, session 17)
 DEFAULT_STEPS = {"grid": 1_000_000, "continuous": 4_000_000}
+#: learners of a ``tpo train`` run (a Gymnasium env's too: one, stepped on the host)
+DEFAULT_POPULATION = {"grid": 4, "continuous": 1}
 #: a run's observation when none is given, by dynamics (tpo.envs.grid's "auto":
 #: the factored numbers and the free cell's one-hot up to ONEHOT_CELLS free cells)
 DEFAULT_OBSERVATION = {"grid": "auto", "continuous": "factored"}
@@ -59,6 +61,10 @@ class RunSpec:
     """local slack: one value for every edge, or one per edge (0,100)"""
     seed: int = 0
     """PRNG seed of the parameters, the run and a Gymnasium env's resets"""
+    population: int = DEFAULT_POPULATION["grid"]
+    """independent learners trained at once (vmapped), each on all the steps; the run
+    answers with the one whose policy LAR's rule prefers on their greedy Monte Carlo
+    returns (default 4 on a grid, 1 with continuous dynamics or a Gymnasium env)"""
     steps: int = DEFAULT_STEPS["grid"]
     """environment steps in all (default 1,000,000; with continuous dynamics 4,000,000)"""
     dynamics: str = field(default="grid", metadata={"choices": DYNAMICS})
@@ -90,8 +96,11 @@ class RunSpec:
         if continuous:
             defaults["steps"] = DEFAULT_STEPS["continuous"]
             defaults["observation"] = DEFAULT_OBSERVATION["continuous"]
+        if continuous or settings.get("env"):
+            defaults["population"] = DEFAULT_POPULATION["continuous"]
         if saved:  # what a run saved without the key meant when it was written
             defaults["observation"] = "coords" if continuous else "factored"
+            defaults["population"] = 1
         run = {name: settings.pop(name, default) for name, default in defaults.items()}
         slack = run["slack"]
         slack = [slack] if isinstance(slack, int | float) else slack
@@ -102,9 +111,12 @@ class RunSpec:
         except (TypeError, ValueError):
             raise RunError(f"slack must be a number or a list of numbers, got {slack!r}"
                            ) from None
-        for name in ("seed", "steps"):
+        for name in ("seed", "steps", "population"):
             if isinstance(run[name], bool) or not isinstance(run[name], int):
-                raise RunError(f"{name} must be an integer, got {run[name]!r}")
+                raise RunError(f"{name} must be an integer, got {run[name]!r:.60}")
+        if not 1 <= run["population"] <= MAX_POPULATION:
+            raise RunError(f"population must be from 1 to {MAX_POPULATION}, got "
+                           f"{run['population']}")
         if not 0 <= run["seed"] < 2**32:
             raise RunError(f"seed must be an integer from 0 to 2**32 - 1, got {run['seed']}")
         for name in ("map", "dag", "observation", "env", "dynamics", "action"):
@@ -130,7 +142,8 @@ class RunSpec:
             raise RunError(f"name the reward components of env '{run['env']}' in order: "
                            "--objectives a,b,...")
         return cls(map=str(run["map"]), dag=str(run["dag"]), slack=slack, seed=run["seed"],
-                   steps=run["steps"], dynamics=run["dynamics"], slip=float(run["slip"]),
+                   population=run["population"], steps=run["steps"],
+                   dynamics=run["dynamics"], slip=float(run["slip"]),
                    observation=str(run["observation"]), action=run["action"],
                    noise=float(run["noise"]), env=str(run["env"]),
                    objectives=tuple(objectives),
@@ -154,7 +167,8 @@ class RunSpec:
         else:
             problem = {"map": self.map, "slip": self.slip, "observation": self.observation}
         return tomli_w.dumps({**problem, "dag": self.dag, "slack": list(self.slack),
-                              "seed": self.seed, "steps": self.steps,
+                              "seed": self.seed, "population": self.population,
+                              "steps": self.steps,
                               **self.config.to_dict()})
 
     def check(self) -> None:
@@ -173,11 +187,12 @@ class RunSpec:
 
         if self.env:
             return TPO(self.env, self.dag, slack=list(self.slack), config=self.config,
-                       seed=self.seed, objectives=self.objectives)
+                       seed=self.seed, objectives=self.objectives, population=self.population)
         if self.dynamics == "continuous":
             env = ContinuousNav(load_map(self.map), action=self.action, noise=self.noise,
                                 observation=self.observation, random_start=True)
         else:
             env = GridNav(load_map(self.map), slip=self.slip, observation=self.observation,
                           random_start=True)
-        return TPO(env, self.dag, slack=list(self.slack), config=self.config, seed=self.seed)
+        return TPO(env, self.dag, slack=list(self.slack), config=self.config, seed=self.seed,
+                   population=self.population)
