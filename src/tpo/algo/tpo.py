@@ -194,14 +194,14 @@ class TPO:
                 key: jax.Array | None = None) -> np.ndarray:
         """Actions for a single observation ``[D]`` or a batch ``[N, D]`` (for a
         Gymnasium env, also one observation as the env returns it)."""
-        trainer = self._need_trainer()
+        state, trainer = self.member(0), self._need_trainer()
         if self.host and np.shape(obs)[-1:] != tuple(self.env.obs_shape):
             obs = self.env.encode(obs)
         obs = jnp.asarray(obs, jnp.float32)
         if obs.shape[-1:] != tuple(self.env.obs_shape):
             raise TPOError(f"observation has shape {tuple(obs.shape)}, expected "
                            f"[..., {self.env.obs_shape[0]}]")
-        pi = trainer.policy(trainer.acting(self.member(0), trainer.slack_array()), obs)
+        pi = trainer.policy(trainer.acting(state, trainer.slack_array()), obs)
         if deterministic:
             return np.asarray(pi.mode())
         return np.asarray(pi.sample(jax.random.key(0) if key is None else key))
@@ -214,9 +214,9 @@ class TPO:
         ``lar_correct``, ``strict`` and ``same_values``; for the continuous env, the
         judgement against its finite reference
         (:func:`tpo.algo.evaluate.reference_evaluation`)."""
-        trainer = self._need_trainer()
+        state, trainer = self.member(0), self._need_trainer()
         gamma, objectives = self.config.gamma, self.env.objectives
-        acting = trainer.acting(self.member(0), trainer.slack_array())
+        acting = trainer.acting(state, trainer.slack_array())
         if self.host and self.eval_env is None:
             self.eval_env = self.env.copy(min(episodes, self.config.num_envs))
         result: dict[str, Any] = {"mc": {}}
