@@ -575,13 +575,19 @@ class Trainer:
         ranges = reward_ranges(self.env.reward_low, self.env.reward_high)[prob.reward]
         zero = (prob.constraint_slacks(slack) <= 0) & (jnp.asarray(prob.active[leaf]) > 0)
         held = jnp.zeros(prob.n_phases, bool).at[jnp.asarray(prob.head)].max(zero)
-        return choose(returns, penalty, [leaf, *range(leaf)],
+        return choose(returns, penalty, self.tie_order,
                       SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)), held)
 
     @property
     def leaf_phase(self) -> int:
         """The leaf objective's phase."""
         return len(self.problem.graph.order) - 1
+
+    @property
+    def tie_order(self) -> list[int]:
+        """The phases in the order the tie rule weighs them: the leaf, then its
+        ancestors roots first."""
+        return [self.leaf_phase, *range(self.leaf_phase)]
 
     @staticmethod
     def _acting_with(state: TrainState, snapshot: jax.Array) -> TrainState:
@@ -606,8 +612,7 @@ class Trainer:
         phase = {name: i for i, name in enumerate(graph.order)}
         edges = [(phase[e.parent], phase[e.child]) for e in graph.edges]
         allowance = jnp.asarray(slack, jnp.float32) / (1 - self.config.gamma)
-        member = choose_member(returns, picks, edges, allowance,
-                               [self.leaf_phase, *range(self.leaf_phase)])
+        member = choose_member(returns, picks, edges, allowance, self.tie_order)
         return self._acting_with(jax.tree.map(lambda x: x[member], states), picks[member])
 
     def candidates(self, state: TrainState, slack: jax.Array, env: Any
