@@ -152,6 +152,16 @@ def test_traced_form_is_the_penalized_advantage_on_raw_returns():
     np.testing.assert_allclose(adv, penalized)
 
 
+def test_traced_penalty_with_its_own_decay():
+    # trace_decay = gamma = 0.5 (the second design's lambda' = 1): the penalty of step 1
+    # reaches step 0 as 0.5 x 1, times beta 2 off GAE(r) = (1.53125, 2.125, 1.5).
+    term = jnp.array([0.0, 0.0, 1.0])
+    adv, targets = lagrangian_advantages("traced", R, V, V_NEXT, jnp.array([0.0, 1.0, 0.0]),
+                                         2.0, term, term, 0.5, 0.5, trace_decay=0.5)
+    assert np.allclose(adv, [1.53125 - 1.0, 0.125, 1.5])
+    assert np.allclose(targets, [2.03125, 3.125, 3.0])
+
+
 def test_every_form_with_beta_0_is_gae():
     term = jnp.array([0.0, 0.0, 1.0])
     penalty = jnp.array([0.3, 1.0, 2.0])

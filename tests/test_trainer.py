@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tpo.algo.config import ConfigError, TPOConfig
-from tpo.algo.networks import scale_output
+from tpo.algo.networks import ValueNorm, scale_output
 from tpo.algo.phases import Problem
 from tpo.algo.train import Rollout, Trainer
 from tpo.envs import OBJECTIVES, load_map
@@ -196,11 +196,26 @@ def test_a_loose_zero_slack_constraint_counts_from_the_tolerance(small):
     reward = np.zeros((3, len(OBJECTIVES)), np.float32)
     reward[:, OBJECTIVES.index("avoid")] = [-1.0, -0.3, 0.2]
     reward[:, OBJECTIVES.index("monitor")] = [0.0, 0.0, 0.5]
-    *_, penalty = trainer.constraint_terms(trainer.slack_array(), jnp.zeros((3, 3)),
-                                           jnp.zeros((3, 3)), jnp.asarray(reward),
-                                           jnp.ones(3), jnp.int32(2))
+
+    def penalty(state):
+        return trainer.constraint_terms(state, trainer.slack_array(), jnp.zeros((3, 3)),
+                                        jnp.zeros((3, 3)), jnp.asarray(reward), jnp.ones(3),
+                                        jnp.int32(2))[-1]
+
+    state = trainer.init(jax.random.key(0))
     # avoid: max(0, 1 - 0.4), max(0, 0.3 - 0.4), 0; monitor (telescoped): 0, 0, -0.5
-    np.testing.assert_allclose(penalty, [0.6, 0.0, -0.5], atol=1e-6)
+    np.testing.assert_allclose(penalty(state), [0.6, 0.0, -0.5], atol=1e-6)
+    # The second design counts it from 0.1 x the avoid head's value std, at least 0.02:
+    # fresh statistics have std 1 (tolerance 0.1); a spread of 0.01 gives the floor.
+    second = trainer.init(jax.random.key(0), design=1)
+    np.testing.assert_allclose(penalty(second), [0.9, 0.2, -0.5], atol=1e-6)
+    ones = jnp.ones(3)
+    narrow = second.replace(value_norm=ValueNorm(-ones, ones + 1e-4, ones))
+    np.testing.assert_allclose(trainer.loose_tolerance(narrow), [0.02, 0.02], atol=1e-6)
+    np.testing.assert_allclose(penalty(narrow), [0.98, 0.28, -0.5], atol=1e-6)
+    # and traces the penalty by gamma alone
+    assert float(trainer.penalty_trace(second)) == pytest.approx(0.99)
+    assert float(trainer.penalty_trace(state)) == pytest.approx(0.99 * 0.95)
 
 
 @pytest.mark.parametrize(("update", "scale"), [(10, 0.0), (12, 0.4), (15, 1.0), (19, 1.0)])

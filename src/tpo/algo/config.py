@@ -21,7 +21,8 @@ REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of
 #: written without them meant: a saved model (or a run's config.toml) without the key
 #: was trained without the feature
 ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
-         "beta_warmup": 0.0, "telescope": "off", "advantage": "penalized"}
+         "beta_warmup": 0.0, "telescope": "off", "advantage": "penalized",
+         "mixed_population": False}
 
 
 #: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
@@ -164,6 +165,12 @@ class TPOConfig:
     carry_temperature: float = 5.0
     """the policy carries over from phase to phase with its logits divided by this
     temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
+    mixed_population: bool = True
+    """a population's odd members learn a second design (penalty form): a zero-slack
+    constraint that does not telescope is counted from 0.1 of its parent head's value
+    spread (at least 0.02) instead of tolerance, and the penalty is traced by gamma
+    alone; its failures are not the first design's, and the population answers with
+    the member LAR's rule prefers (docs/design.md §5, docs/notes/tpo-learning.md)"""
 
     def __post_init__(self) -> None:
         for name, most in (("num_envs", 2**16), ("num_steps", 2**20), ("update_epochs", 1000),
@@ -220,7 +227,7 @@ class TPOConfig:
             value = getattr(self, name)
             if not isinstance(value, str) or value not in choices:
                 raise ConfigError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
-        for name in ("anneal_lr", "completion", "select"):
+        for name in ("anneal_lr", "completion", "select", "mixed_population"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.phase_fractions is not None:

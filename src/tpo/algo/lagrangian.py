@@ -94,16 +94,18 @@ def admissible(advantages: jax.Array, slack: jax.Array, active: jax.Array) -> ja
 
 def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Array,
                           next_value: jax.Array, penalty: jax.Array, beta: jax.Array,
-                          terminated: jax.Array, done: jax.Array, gamma: float, lam: float
+                          terminated: jax.Array, done: jax.Array, gamma: float, lam: float,
+                          trace_decay: float | jax.Array | None = None
                           ) -> tuple[jax.Array, jax.Array]:
     """Advantages and critic targets of the phase's objective (time-major ``[T, ...]``).
 
-    ``penalty`` is ``sum_{E_i} C`` per transition; ``beta`` the multiplier::
+    ``penalty`` is ``sum_{E_i} C`` per transition; ``beta`` the multiplier;
+    ``trace_decay`` the traced form's ``gamma lambda'`` (by default ``gamma lambda``)::
 
         penalized: A_t = GAE(r_t - beta penalty_t)
         literal:   A_t = GAE(r_t) - sum_l (gamma lambda)^l gamma beta penalty_{t+l+1}
         immediate: A_t = GAE(r_t) - beta penalty_t
-        traced:    A_t = GAE(r_t) - beta sum_l (gamma lambda)^l penalty_{t+l}
+        traced:    A_t = GAE(r_t) - beta sum_l (gamma lambda')^l penalty_{t+l}
     """
     check_shapes(reward, value=value, next_value=next_value, penalty=penalty,
                  terminated=terminated, done=done)
@@ -115,7 +117,8 @@ def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Arr
     if form == "immediate":
         return advantages - beta * penalty, targets
     if form == "traced":
-        return advantages - beta * discounted_cumsum(penalty, gamma * lam, done), targets
+        decay = gamma * lam if trace_decay is None else trace_decay
+        return advantages - beta * discounted_cumsum(penalty, decay, done), targets
     following = jnp.concatenate([penalty[1:], jnp.zeros_like(penalty[:1])])
     shifted = gamma * beta * following * (1.0 - done)
     return advantages - discounted_cumsum(shifted, gamma * lam, done), targets

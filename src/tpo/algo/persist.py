@@ -26,8 +26,10 @@ from tpo.atomic import write_dir_atomic
 from tpo.errors import DamagedModel, TPOError
 from tpo.schema import check_table
 
-FORMAT = 6  # 5: model.json holds the SHA-256 of state.msgpack; 6: the phases' snapshots
-READS = (5, 6)  # a format-5 state's snapshots are its actor (nothing to choose among)
+FORMAT = 7  # 5: model.json holds the SHA-256 of state.msgpack; 6: the phases' snapshots;
+#: 7: each learner's design (a population's second design)
+READS = (5, 6, 7)  # a format-5 state's snapshots are its actor (nothing to choose among);
+#: a state before 7 learned the first design
 
 
 def state_bytes(state: TrainState, **extra: Any) -> bytes:
@@ -52,6 +54,8 @@ def restore_state(template: TrainState, blob: bytes) -> tuple[TrainState, dict[s
             n = jax.tree.leaves(template.snapshots)[0].shape[axis]
             data["snapshots"] = jax.tree.map(lambda x: np.stack([x] * n, axis),
                                              data["params"]["actor"])
+        if found < 7:
+            data["design"] = np.zeros_like(template.design)
         state = serialization.from_state_dict(like, data)
         for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(like),
                                      jax.tree.leaves(state), strict=True):

@@ -137,7 +137,8 @@ class TPO:
             key = jax.random.key(self.seed)
             key = jax.random.fold_in(key, m) if m else key
             old = None if self.state is None else self.member(m)
-            state = trainer.init(key, None if old is None else old.params, obs)
+            design = int(self.config.mixed_population and m % 2 == 1)
+            state = trainer.init(key, None if old is None else old.params, obs, design)
             members.append(state if old is None else state.replace(value_norm=old.value_norm))
         state = members[0] if self.population == 1 else _stack(members)
         self.trainer, self.state, self._run = trainer, state, None

@@ -65,6 +65,9 @@ SELECT_EPISODES = 16  # greedy episodes per candidate at a run's end (Trainer.fi
 #: a candidate's penalty may exceed the leaf policy's by this many one-step reward ranges
 #: of the constrained parents (the learned critics' noise, docs/notes/tpo-learning.md)
 SELECT_PENALTY = 5.0
+#: a population's second design (``TPOConfig.mixed_population``): a loose constraint's
+#: tolerance as a share of its parent head's value spread, and its least value
+SECOND_TOLERANCE, SECOND_FLOOR = 0.1, 0.02
 
 
 @struct.dataclass
@@ -81,6 +84,7 @@ class TrainState:
     value_norm: ValueNorm
     episodes: EpisodeStats
     snapshots: dict  # the actor as each phase left it, every leaf [P, ...]
+    design: jax.Array  # int32 []: 1 for a population's second design, else 0
 
 
 class Rollout(NamedTuple):
@@ -204,16 +208,18 @@ class Trainer:
         return init_params(key, self.actor, self.critics, self.env.obs_shape)
 
     def init(self, key: jax.Array, params: dict | None = None,
-             obs: jax.Array | None = None) -> TrainState:
+             obs: jax.Array | None = None, design: int = 0) -> TrainState:
         """A fresh run; ``params`` default to :meth:`init_params` of ``key``. A JAX
         env resets itself; a host-stepped env passes its first observations ``obs``
-        ``[E, D]`` (the state then holds no env state)."""
+        ``[E, D]`` (the state then holds no env state). ``design`` 1 learns a
+        population's second design (:meth:`loose_tolerance`, :meth:`penalty_trace`)."""
         k_params, k_env, k_run = jax.random.split(key, 3)
         params = self.init_params(k_params) if params is None else params
         env_state = None
         if obs is None:
             obs, env_state = self._reset(k_env)
-        return self._init_state(params, env_state, jnp.asarray(obs, jnp.float32), k_run)
+        return self._init_state(params, env_state, jnp.asarray(obs, jnp.float32), k_run,
+                                jnp.int32(design))
 
     @partial(jax.jit, static_argnums=0)
     def _reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
@@ -221,15 +227,15 @@ class Trainer:
             jax.random.split(key, self.config.num_envs), self.env.params)
 
     @partial(jax.jit, static_argnums=0)
-    def _init_state(self, params: dict, env_state: Any, obs: jax.Array, k_run: jax.Array
-                    ) -> TrainState:
+    def _init_state(self, params: dict, env_state: Any, obs: jax.Array, k_run: jax.Array,
+                    design: jax.Array) -> TrainState:
         return TrainState(params, self.optimizer.init(params["actor"]),
                           self.optimizer.init(params["critics"]), env_state, obs, k_run,
                           jnp.zeros((), jnp.int32), ValueNorm.init(self.problem.n_phases),
                           EpisodeStats.init(self.config.num_envs,
                                             len(self.problem.objectives)),
                           jax.tree.map(lambda x: jnp.stack([x] * self.problem.n_phases),
-                                       params["actor"]))
+                                       params["actor"]), design)
 
     # -------------------------------------------------------------- policy
     def acting(self, state: TrainState, slack: jax.Array,
@@ -396,8 +402,8 @@ class Trainer:
         cfg, prob = self.config, self.problem
         pick = jax.nn.one_hot(phase, prob.n_phases)
         rewards, value, next_value, adv_all, penalty = self.constraint_terms(
-            slack, *self.rollout_values(state, rollout), rollout.reward, rollout.terminated,
-            phase)
+            state, slack, *self.rollout_values(state, rollout), rollout.reward,
+            rollout.terminated, phase)
         reward, v, next_v = rewards @ pick, value @ pick, next_value @ pick
         tie = jnp.asarray(prob.tie)[phase]
         if prob.tie.any() and cfg.tie_critic == "leaf":
@@ -409,7 +415,7 @@ class Trainer:
         advantage, target = lagrangian_advantages(
             cfg.advantage, reward, v, next_v, penalty,
             jnp.asarray(prob.beta)[phase] * self.beta_scale(state.update),
-            rollout.terminated, done, cfg.gamma, cfg.gae_lambda)
+            rollout.terminated, done, cfg.gamma, cfg.gae_lambda, self.penalty_trace(state))
         if prob.tie.any() and cfg.tie_critic == "ancestors":
             # the ancestors' one-step advantages, bounded, then discounted
             bound = jnp.asarray(prob.tie_bound)[phase]
@@ -440,15 +446,16 @@ class Trainer:
             slots, jnp.arange(envs)].set(out[steps:])
         return value, next_value
 
-    def constraint_terms(self, slack: jax.Array, value: jax.Array, next_value: jax.Array,
-                         reward: jax.Array, terminated: jax.Array, phase: jax.Array
-                         ) -> tuple[jax.Array, ...]:
+    def constraint_terms(self, state: TrainState, slack: jax.Array, value: jax.Array,
+                         next_value: jax.Array, reward: jax.Array, terminated: jax.Array,
+                         phase: jax.Array) -> tuple[jax.Array, ...]:
         """Of transitions (any leading axes) whose every head's values and next values
         are ``value`` and ``next_value`` ``[..., P]``: every phase's reward, the
         one-step advantages against the frozen critics (``[..., P]``, returned beside
         the rewards and the values), and ``phase``'s penalty ``[...]`` (Eq. 10's sum of
-        violations, each counted from its slack less its ``margin``; zero in the
-        restriction form, where the admissible actions alone keep the slacks)."""
+        violations, each counted from its slack less its ``margin``, a loose one from
+        :meth:`loose_tolerance`; zero in the restriction form, where the admissible
+        actions alone keep the slacks)."""
         prob = self.problem
         rewards = reward[..., jnp.asarray(prob.reward)]
         adv_all = ancestral_advantages(rewards, value, next_value, terminated,
@@ -459,10 +466,27 @@ class Trainer:
         margin = jnp.minimum(jnp.asarray(self.margin), slacks / 2)
         loose = jnp.asarray(self.loose) & (slacks <= 0)
         c = violations(adv_all, jnp.asarray(prob.head),
-                       slacks - margin + jnp.where(loose, jnp.asarray(self.tolerance), 0.0),
+                       slacks - margin + jnp.where(loose, self.loose_tolerance(state), 0.0),
                        jnp.asarray(self.telescoped))
         penalty = c @ jnp.asarray(prob.active)[phase]  # zeros when no edges
         return rewards, value, next_value, adv_all, penalty
+
+    def loose_tolerance(self, state: TrainState) -> jax.Array:
+        """The tolerance ``[C]`` from which a loose constraint's violations count:
+        ``tolerance`` times its parent's one-step reward range; in the second design,
+        ``SECOND_TOLERANCE`` times the spread (std) of its parent head's value targets,
+        at least ``SECOND_FLOOR`` (a head's errors grow with its values' spread, as it
+        learns them normalised: docs/notes/tpo-learning.md, session 28)."""
+        spread = state.value_norm.stats()[1][jnp.asarray(self.problem.head)]
+        second = jnp.maximum(SECOND_TOLERANCE * spread, SECOND_FLOOR)
+        return jnp.where(state.design == 1, second, jnp.asarray(self.tolerance))
+
+    def penalty_trace(self, state: TrainState) -> jax.Array:
+        """The decay of the traced penalty (:func:`lagrangian_advantages`):
+        ``gamma * gae_lambda``; ``gamma`` in the second design, so a violation reaches
+        the fork that led to it undiminished by lambda."""
+        cfg = self.config
+        return jnp.where(state.design == 1, cfg.gamma, cfg.gamma * cfg.gae_lambda)
 
     def ppo_epochs(self, state: TrainState, batch: Batch, phase: jax.Array,
                    value_norm: ValueNorm, lr: jax.Array, ent_coef: jax.Array
@@ -638,7 +662,7 @@ class Trainer:
         # The critics see every step at once (one batched call, not one per step).
         value, next_value = self.values(state, jnp.stack([ep.obs, ep.next_obs]))[..., 0]
         rewards, *_, penalty = self.constraint_terms(
-            slack, value, next_value, ep.reward, ep.terminated, leaf)
+            state, slack, value, next_value, ep.reward, ep.terminated, leaf)
         gamma = self.config.gamma
         return (discounted(rewards, ep.alive, gamma).mean(0),
                 discounted(penalty, ep.alive, gamma).mean(0))
