@@ -38,6 +38,7 @@ def main() -> None:
     parser.add_argument("--map", default="small")
     parser.add_argument("--problems", nargs="+", default=list(PROBLEMS), metavar="DAG:SLACK")
     parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds first-seed, ...")
     parser.add_argument("--observation", default="auto", choices=("auto", *OBSERVATIONS))
     parser.add_argument("--steps", type=int, default=600_000)
     parser.add_argument("--population", type=int, default=1,
@@ -54,7 +55,8 @@ def main() -> None:
         dag, _, slack = problem.rpartition(":")
         t0 = time.perf_counter()
         slacks = [float(v) for v in slack.split(",")]
-        result = (run_sweep(env, dag, [slacks], list(range(args.seeds)), config, args.steps)
+        seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+        result = (run_sweep(env, dag, [slacks], seeds, config, args.steps)
                   if args.population == 1 else population_runs(env, dag, slacks, args, config))
         counts = {k: int(getattr(result, k)[0].sum()) for k in
                   ("lar_correct", "strict", "same_values")}
@@ -75,7 +77,7 @@ def main() -> None:
           f"{totals['same_values']:>2}/{n}")
     print(json.dumps({"map": args.map, "observation": args.observation, "steps": args.steps,
                       "population": args.population,
-                      "seeds": args.seeds,
+                      "seeds": args.seeds, "first_seed": args.first_seed,
                       "config": config.to_dict(),
                       "totals": totals, "problems": rows}))
 
@@ -86,7 +88,7 @@ def population_runs(env: GridNav, dag: str, slack: list[float], args: argparse.N
     the fields of a one-slack :class:`tpo.experiments.sweep.SweepResult` this
     script reads."""
     verdicts, exact = [], []
-    for seed in range(args.seeds):
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
         model = TPO(env, dag, slack, config, seed, population=args.population)
         result = model.learn(args.steps).evaluate(episodes=1)
         verdicts.append([result[k] for k in ("lar_correct", "strict", "same_values")])

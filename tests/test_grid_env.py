@@ -132,6 +132,16 @@ def test_factored_onehot_observation_by_hand():
     assert not table[0, 0, -6:].any()  # a wall is no free cell
 
 
+def test_factored_onehot_observation_has_two_views():
+    """A population's members may see the free cell's one-hot, or the factored
+    numbers, alone: the last 6 and the first 15 of TINY's 21."""
+    onehot, factored = GridNav(parse_map(TINY), observation="factored+onehot").observation_views
+    assert onehot.tolist() == [False] * 15 + [True] * 6
+    assert factored.tolist() == [True] * 15 + [False] * 6
+    for kind in ("factored", "onehot", "coords"):
+        assert GridNav(parse_map(TINY), observation=kind).observation_views == ()
+
+
 def test_auto_observation_adds_the_cell_up_to_a_size():
     """"auto" is factored+onehot up to ONEHOT_CELLS free cells, factored beyond, and
     the env records (and saves) the kind it chose."""

@@ -178,16 +178,17 @@ def test_a_format_5_state_loads_with_its_actor_as_every_snapshot(three_phases, b
     jax.tree.map(lambda s, a: np.testing.assert_array_equal(
         s, np.stack([a] * 3, axis)), loaded.snapshots, state.params["actor"])
     np.testing.assert_array_equal(loaded.design, np.zeros(batch, np.int32))
+    np.testing.assert_array_equal(loaded.view, np.zeros(batch, np.int32))
 
 
-def test_a_format_6_state_learned_the_first_design(three_phases):
-    """States saved before a population's second design (whatever the template's)."""
+def test_a_format_6_state_learned_the_first_design_on_the_whole_observation(three_phases):
+    """States saved before a population's mixed members (whatever the template's)."""
     _, _, state, _ = three_phases
     data = serialization.to_state_dict(state.replace(key=jax.random.key_data(state.key)))
-    del data["design"]
+    del data["design"], data["view"]
     blob = serialization.msgpack_serialize({"format": 6, "state": data})
-    loaded, _ = restore_state(state.replace(design=jnp.int32(1)), blob)
-    assert int(loaded.design) == 0
+    loaded, _ = restore_state(state.replace(design=jnp.int32(1), view=jnp.int32(1)), blob)
+    assert int(loaded.design) == 0 and int(loaded.view) == 0
     jax.tree.map(np.testing.assert_array_equal, loaded.snapshots, state.snapshots)
 
 

@@ -151,7 +151,8 @@ def test_a_population_trains_its_members_at_once_and_answers_with_one(tmp_path):
     assert model.num_timesteps == total  # steps of each member
     mid = TPO.load(tmp_path / "mid")
     assert mid.population == 3 and mid.stacked and mid.updates_done == 4
-    assert mid.state.design.tolist() == [0, 1, 0]  # odd members learn the second design
+    # odd members learn the second design; the third sees the cell's one-hot alone
+    assert mid.state.design.tolist() == [0, 1, 0] and mid.state.view.tolist() == [0, 0, 1]
     assert mid.predict(np.zeros(mid.env.obs_shape)).shape == ()  # its first member acts
     resumed = mid.resume(chunk_updates=4)
     same = jax.tree.map(lambda a, b: bool(np.array_equal(a, b)),
@@ -167,7 +168,7 @@ def test_an_unmixed_population_learns_one_design():
     config = TPOConfig(num_envs=8, num_steps=32, mixed_population=False)
     model = TPO("small", "M>A>G", slack=[100, 0], config=config, population=2)
     model.learn(8 * 32 * 12, lambda m, n: False, chunk_updates=4)
-    assert model.state.design.tolist() == [0, 0]
+    assert model.state.design.tolist() == [0, 0] and model.state.view.tolist() == [0, 0]
 
 
 @pytest.mark.parametrize("bad", [0, 65, True, 2.0])

@@ -441,3 +441,26 @@ def test_a_rollout_s_values_equal_the_critics_on_every_true_next_state(constrain
     counts = np.asarray(rollout.terminated) == 0
     np.testing.assert_allclose(np.asarray(next_value)[counts], np.asarray(every[1])[counts],
                                rtol=0, atol=1e-5)
+
+
+def test_a_learner_of_one_view_never_reads_the_rest_of_the_observation(small):
+    """View 1 of the factored+onehot observation is the cell's one-hot: the first
+    layers' weights from the factored numbers start at zero and stay there, so the
+    policy and the critics are the same whatever those numbers are."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("M>A>G", [100.0, 0.0], objectives=OBJECTIVES)
+    trainer = Trainer(train_env, graph, TPOConfig(num_envs=8, num_steps=32), 8 * 32 * 6)
+    hidden = ~trainer.views[1].astype(bool)
+    assert trainer.views.shape == (3, train_env.obs_shape[0]) and hidden.sum() == 8 + 13 + 6
+    state = trainer.init(jax.random.key(0), view=1)
+    state, _ = jax.jit(trainer.run, static_argnums=2)(state, trainer.slack_array(), 3)
+    actor = state.params["actor"]["layer_0"]["kernel"]
+    critics = state.params["critics"]["heads"]["layer_0"]["kernel"]
+    assert not np.asarray(actor)[hidden].any() and not np.asarray(critics)[:, hidden].any()
+    assert np.asarray(actor)[~hidden].any()  # the seen part learns
+    obs = jnp.asarray(train_env.tabular_observations())
+    noise = jax.random.normal(jax.random.key(1), obs.shape) * jnp.asarray(hidden)
+    acting = trainer.acting(state, trainer.slack_array())
+    np.testing.assert_array_equal(trainer.policy(acting, obs).logits,
+                                  trainer.policy(acting, obs + noise).logits)
+    np.testing.assert_array_equal(trainer.values(state, obs), trainer.values(state, obs + noise))

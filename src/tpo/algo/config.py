@@ -166,11 +166,13 @@ class TPOConfig:
     """the policy carries over from phase to phase with its logits divided by this
     temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
     mixed_population: bool = True
-    """a population's odd members learn a second design (penalty form): a zero-slack
-    constraint that does not telescope is counted from 0.1 of its parent head's value
-    spread (at least 0.02) instead of tolerance, and the penalty is traced by gamma
-    alone; its failures are not the first design's, and the population answers with
-    the member LAR's rule prefers (docs/design.md §5, docs/notes/tpo-learning.md)"""
+    """a population's members differ, so they do not all fail alike: the odd ones learn
+    a second design (penalty form: a zero-slack constraint that does not telescope is
+    counted from 0.1 of its parent head's value spread, at least 0.02, instead of
+    tolerance, and the penalty is traced by gamma alone), and each pair of members
+    sees the next part of the observation that the env offers alone (the grid's
+    free-cell one-hot, then its factored numbers); false: every member alike
+    (docs/design.md §5, docs/notes/tpo-learning.md)"""
 
     def __post_init__(self) -> None:
         for name, most in (("num_envs", 2**16), ("num_steps", 2**20), ("update_epochs", 1000),

@@ -27,7 +27,7 @@ from tpo.errors import DamagedModel, TPOError
 from tpo.schema import check_table
 
 FORMAT = 7  # 5: model.json holds the SHA-256 of state.msgpack; 6: the phases' snapshots;
-#: 7: each learner's design (a population's second design)
+#: 7: each learner's design and observation view (a population's members)
 READS = (5, 6, 7)  # a format-5 state's snapshots are its actor (nothing to choose among);
 #: a state before 7 learned the first design
 
@@ -56,6 +56,7 @@ def restore_state(template: TrainState, blob: bytes) -> tuple[TrainState, dict[s
                                              data["params"]["actor"])
         if found < 7:
             data["design"] = np.zeros_like(template.design)
+            data["view"] = np.zeros_like(template.view)
         state = serialization.from_state_dict(like, data)
         for (path, want), got in zip(jax.tree_util.tree_leaves_with_path(like),
                                      jax.tree.leaves(state), strict=True):

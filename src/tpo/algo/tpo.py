@@ -54,7 +54,9 @@ class TPO:
             JAX env only), each on ``total_timesteps`` steps; the model answers with
             the one whose policy LAR's rule prefers on their greedy Monte Carlo
             returns (:meth:`Trainer.finish_population`). Member 0 is seeded as a
-            lone learner is.
+            lone learner is; with ``config.mixed_population`` the members differ
+            in design and in the part of the observation they see
+            (:meth:`_member_design`).
     """
 
     def __init__(self, env: Env | str | gym.Env | gym.vector.VectorEnv | EnvFactory,
@@ -137,12 +139,20 @@ class TPO:
             key = jax.random.key(self.seed)
             key = jax.random.fold_in(key, m) if m else key
             old = None if self.state is None else self.member(m)
-            design = int(self.config.mixed_population and m % 2 == 1)
-            state = trainer.init(key, None if old is None else old.params, obs, design)
+            design, view = self._member_design(m, len(trainer.views))
+            state = trainer.init(key, None if old is None else old.params, obs, design, view)
             members.append(state if old is None else state.replace(value_norm=old.value_norm))
         state = members[0] if self.population == 1 else _stack(members)
         self.trainer, self.state, self._run = trainer, state, None
         return self.resume(callback, chunk_updates)
+
+    def _member_design(self, m: int, views: int) -> tuple[int, int]:
+        """Member ``m``'s design and observation view (:meth:`Trainer.init`): with
+        ``mixed_population`` the odd members learn the second design, and each pair
+        of members the next of the env's ``views`` (0: the whole observation)."""
+        if not self.config.mixed_population:
+            return 0, 0
+        return m % 2, (m // 2) % views
 
     def resume(self, callback: Callback | None = None, chunk_updates: int = 16) -> TPO:
         """Continue the current training program (of :meth:`learn`, or of a model

@@ -85,6 +85,7 @@ class TrainState:
     episodes: EpisodeStats
     snapshots: dict  # the actor as each phase left it, every leaf [P, ...]
     design: jax.Array  # int32 []: 1 for a population's second design, else 0
+    view: jax.Array  # int32 []: the row of Trainer.views the learner sees (0: everything)
 
 
 class Rollout(NamedTuple):
@@ -158,6 +159,11 @@ class Trainer:
         limit = getattr(env, "max_steps", None)
         self.own_next = config.num_steps if limit is None else min(
             config.num_steps, (config.num_steps - 1) // limit + 2)
+        #: the observation views a learner may learn from, ``[V, D]`` (0/1): row 0 the
+        #: whole observation, then the env's ``observation_views``
+        whole = np.ones((1, *env.obs_shape), np.float32)
+        self.views = np.concatenate([whole, *[np.asarray(v, np.float32)[None] for v in
+                                              getattr(env, "observation_views", ())]])
         n_out = 1 + int(space.n) if self.restricts else 1
         self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation)
         n_phases = self.problem.n_phases
@@ -208,18 +214,19 @@ class Trainer:
         return init_params(key, self.actor, self.critics, self.env.obs_shape)
 
     def init(self, key: jax.Array, params: dict | None = None,
-             obs: jax.Array | None = None, design: int = 0) -> TrainState:
+             obs: jax.Array | None = None, design: int = 0, view: int = 0) -> TrainState:
         """A fresh run; ``params`` default to :meth:`init_params` of ``key``. A JAX
         env resets itself; a host-stepped env passes its first observations ``obs``
         ``[E, D]`` (the state then holds no env state). ``design`` 1 learns a
-        population's second design (:meth:`loose_tolerance`, :meth:`penalty_trace`)."""
+        population's second design (:meth:`loose_tolerance`, :meth:`penalty_trace`);
+        ``view`` is the row of :attr:`views` the learner sees (:meth:`see_only`)."""
         k_params, k_env, k_run = jax.random.split(key, 3)
         params = self.init_params(k_params) if params is None else params
         env_state = None
         if obs is None:
             obs, env_state = self._reset(k_env)
         return self._init_state(params, env_state, jnp.asarray(obs, jnp.float32), k_run,
-                                jnp.int32(design))
+                                jnp.int32(design), jnp.int32(view))
 
     @partial(jax.jit, static_argnums=0)
     def _reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
@@ -228,14 +235,29 @@ class Trainer:
 
     @partial(jax.jit, static_argnums=0)
     def _init_state(self, params: dict, env_state: Any, obs: jax.Array, k_run: jax.Array,
-                    design: jax.Array) -> TrainState:
+                    design: jax.Array, view: jax.Array) -> TrainState:
+        params = self.see_only(params, view)
         return TrainState(params, self.optimizer.init(params["actor"]),
                           self.optimizer.init(params["critics"]), env_state, obs, k_run,
                           jnp.zeros((), jnp.int32), ValueNorm.init(self.problem.n_phases),
                           EpisodeStats.init(self.config.num_envs,
                                             len(self.problem.objectives)),
                           jax.tree.map(lambda x: jnp.stack([x] * self.problem.n_phases),
-                                       params["actor"]), design)
+                                       params["actor"]), design, view)
+
+    def see_only(self, params: dict, view: jax.Array) -> dict:
+        """``params`` (or their gradient) with the first layers' weights from the inputs
+        outside ``views[view]`` zeroed: networks of that part of the observation alone
+        (zero weights get zero gradients, and Adam moves them by zero)."""
+        if len(self.views) == 1:
+            return params
+        mask = jnp.asarray(self.views)[view][:, None]  # [D, 1]
+
+        def first(net: dict) -> dict:
+            return {**net, "layer_0": {**net["layer_0"], "kernel": net["layer_0"]["kernel"] * mask}}
+
+        return {"actor": first(params["actor"]),
+                "critics": {**params["critics"], "heads": first(params["critics"]["heads"])}}
 
     # -------------------------------------------------------------- policy
     def acting(self, state: TrainState, slack: jax.Array,
@@ -501,6 +523,7 @@ class Trainer:
             params, actor_opt, critic_opt = carry
             grads, info = jax.grad(self._loss, has_aux=True)(params, mb, phase, scale,
                                                               ent_coef)
+            grads = self.see_only(grads, state.view)
             a_up, actor_opt = self.optimizer.update(grads["actor"], actor_opt)
             c_up, critic_opt = self.optimizer.update(self._trainable(grads["critics"], phase),
                                                      critic_opt)

@@ -132,6 +132,18 @@ class GridNav(JaxEnv):
     def obs_shape(self) -> tuple[int]:
         return (int(self.params.obs_table.shape[-1]),)
 
+    @property
+    def observation_views(self) -> tuple[np.ndarray, ...]:
+        """Parts of the observation that a learner may see alone (bool masks ``[D]``):
+        of ``"factored+onehot"``, the free cell's one-hot, then the factored numbers;
+        none of the other kinds (a population's members learn from them in turn:
+        :class:`tpo.algo.TPO`)."""
+        if self.observation != "factored+onehot":
+            return ()
+        h, w = self.navmap.shape
+        factored = np.arange(self.obs_shape[0]) < h + w + len(MOVES) + 2
+        return ~factored, factored
+
     def to_spec(self) -> dict[str, Any]:
         """What rebuilds this env (:func:`tpo.envs.from_spec`); the map travels as
         TOML text."""
