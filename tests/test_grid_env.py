@@ -142,6 +142,20 @@ def test_factored_onehot_observation_has_two_views():
         assert GridNav(parse_map(TINY), observation=kind).observation_views == ()
 
 
+def test_observations_declare_their_one_hot_blocks():
+    """TINY (4 x 5, 6 free cells): the row's one-hot is numbers 0-3, the column's 4-8,
+    the free cell's the last 6; each block of every cell's observation holds one 1."""
+    blocks = {kind: GridNav(parse_map(TINY), observation=kind).observation_onehots
+              for kind in OBSERVATIONS}
+    assert blocks == {"factored": ((0, 4), (4, 9)), "onehot": ((0, 20),), "coords": (),
+                      "factored+onehot": ((0, 4), (4, 9), (15, 21))}
+    table = observation_table(parse_map(TINY), "factored+onehot")
+    free = ~parse_map(TINY).walls
+    for a, b in blocks["factored+onehot"]:
+        assert (table[free][:, a:b].sum(-1) == 1).all()
+        assert set(np.unique(table[..., a:b]).tolist()) == {0.0, 1.0}
+
+
 def test_auto_observation_adds_the_cell_up_to_a_size():
     """"auto" is factored+onehot up to ONEHOT_CELLS free cells, factored beyond, and
     the env records (and saves) the kind it chose."""

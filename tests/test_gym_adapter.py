@@ -90,6 +90,8 @@ def test_changing_observation_shape_is_an_error():
 
 def test_discrete_observations_are_one_hot_and_episodes_auto_reset():
     line = HostEnv(make_line(obs_space=gym.spaces.Discrete(5)), ["reach", "left"], 2)
+    assert line.observation_onehots == ((0, 5),)  # the network reads it as one row
+    assert HostEnv(make_line(), ["reach", "left"], 1).observation_onehots == ()
     obs = line.reset(seed=0)
     assert obs.shape == (2, 5) and (obs[:, 0] == 1).all()
     for _ in range(3):

@@ -396,6 +396,49 @@ def test_one_critic_head_equals_its_column_of_all_heads():
                                    every[:, column], rtol=0, atol=1e-6)
 
 
+def test_a_first_layer_reads_one_hot_blocks_by_hand():
+    """InputDense: with kernel rows k_i = (i + 1, -i - 1) and bias (1, 0), blocks
+    (1, 4) and (4, 7): the input (0.5 | 0, 2, 0 | 0, 0, 0) gives 0.5 k_0 + 2 k_2 +
+    bias = (7.5, -6.5) (an empty block adds nothing), (0 | 0, 0, 1 | 0, 3, 0) gives
+    k_3 + 3 k_5 + bias = (23, -22)."""
+    from tpo.algo.networks import InputDense
+
+    layer = InputDense(2, ((1, 4), (4, 7)), lambda key, shape, dtype: jnp.stack(
+        [jnp.arange(1.0, 8.0), -jnp.arange(1.0, 8.0)], -1))
+    x = jnp.array([[0.5, 0, 2, 0, 0, 0, 0], [0, 0, 0, 1, 0, 3, 0]])
+    params = layer.init(jax.random.key(0), x)
+    params = jax.tree.map(lambda p: p + jnp.array([1.0, 0.0]) if p.ndim == 1 else p, params)
+    np.testing.assert_allclose(layer.apply(params, x), [[7.5, -6.5], [23, -22]])
+
+
+@pytest.mark.parametrize("observation", ["factored+onehot", "onehot"])
+def test_one_hot_blocks_change_no_number_of_the_networks(observation):
+    """The actor and critics that gather the grid's one-hot blocks are initialised
+    exactly as plain dense layers, and agree with them in outputs and gradients on
+    every cell of `home`."""
+    from tpo.algo.networks import init_params
+
+    env = GridNav(load_map("home"), observation=observation)
+    tr = Trainer(env, ObjectiveGraph.parse("M>A>G", [5.0, 5.0], objectives=OBJECTIVES),
+                 TPOConfig(), 10**5)
+    assert tr.actor.onehots == tr.critics.onehots == env.observation_onehots != ()
+    plain_actor = dataclasses.replace(tr.actor, onehots=())
+    plain_critics = dataclasses.replace(tr.critics, onehots=())
+    params = tr.init_params(jax.random.key(3))
+    jax.tree.map(np.testing.assert_array_equal, params,
+                 init_params(jax.random.key(3), plain_actor, plain_critics, env.obs_shape))
+    obs = env.params.obs_table.reshape(-1, env.obs_shape[0])
+    for net, plain, p in [(tr.actor, plain_actor, params["actor"]),
+                          (tr.critics, plain_critics, params["critics"])]:
+        def total(q, module):
+            out = module.apply({"params": q}, obs)
+            return jnp.sum(jnp.sin(getattr(out, "logits", out)))
+        np.testing.assert_allclose(total(p, net), total(p, plain), rtol=1e-5)
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5),
+                     jax.grad(total)(p, net), jax.grad(total)(p, plain))
+
+
+
 @pytest.mark.parametrize("shape", [(7, 16), (16, 16), (16, 3), (2, 3, 4), (3, 2)])
 def test_the_orthogonal_initialiser_is_jax_s_bit_for_bit(shape):
     from tpo.algo.networks import orthogonal

@@ -58,18 +58,56 @@ def orthogonal(scale: float) -> Callable[..., jax.Array]:
     return init
 
 
+#: blocks ``(start, stop)`` of an observation, each holding at most one non-zero number
+OneHots = tuple[tuple[int, int], ...]
+
+
+class InputDense(nn.Module):
+    """``nn.Dense`` (the same ``kernel`` and ``bias``, initialised alike) for inputs
+    whose ``onehots`` blocks hold at most one non-zero number each: a block's product
+    ``x[a:b] @ kernel[a:b]`` is its one non-zero ``x[a + i] * kernel[a + i]``, a row
+    gathered instead of a matrix product (the grid's free-cell one-hot is 194 of
+    ``home``'s 241 numbers: docs/notes/tpo-learning.md, session 29)."""
+
+    features: int
+    onehots: OneHots
+    kernel_init: Callable[..., jax.Array]
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", self.kernel_init, (x.shape[-1], self.features),
+                            jnp.float32)
+        y = self.param("bias", nn.initializers.zeros, (self.features,), jnp.float32)
+        start = 0
+        for a, b in [*self.onehots, (x.shape[-1], x.shape[-1])]:
+            if a > start:  # the dense numbers before this block
+                y = y + x[..., start:a] @ kernel[start:a]
+            if b > a:
+                block = x[..., a:b]
+                i = jnp.argmax(block != 0, axis=-1)  # the non-zero number (0 if none)
+                y = y + jnp.take_along_axis(block, i[..., None], -1) * kernel[a:b][i]
+            start = b
+        return y
+
+
 def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
-                activation: str) -> jax.Array:
+                activation: str, onehots: OneHots = ()) -> jax.Array:
     """Hidden layers ``layer_0, layer_1, ...`` and the output layer ``out``, created in
     the calling module (call it from a compact method): named, so code that reads a
     layer (:meth:`Critics.head`, the actor's softening) never depends on Flax's
-    automatic names."""
+    automatic names. The first layer reads the input's ``onehots`` blocks by
+    :class:`InputDense`."""
     act = ACTIVATIONS[activation]
-    for i, width in enumerate(hidden):
-        x = act(nn.Dense(width, kernel_init=orthogonal(np.sqrt(2)),
-                         bias_init=nn.initializers.zeros, name=f"layer_{i}")(x))
-    return nn.Dense(out, kernel_init=orthogonal(out_gain),
-                    bias_init=nn.initializers.zeros, name="out")(x)
+    names, widths = [f"layer_{i}" for i in range(len(hidden))] + ["out"], [*hidden, out]
+    for i, (name, width) in enumerate(zip(names, widths, strict=True)):
+        init = orthogonal(out_gain if name == "out" else np.sqrt(2))
+        if i == 0 and onehots:
+            x = InputDense(width, onehots, init, name=name)(x)
+        else:
+            x = nn.Dense(width, kernel_init=init, bias_init=nn.initializers.zeros, name=name)(x)
+        if name != "out":
+            x = act(x)
+    return x
 
 
 class MLP(nn.Module):
@@ -79,10 +117,12 @@ class MLP(nn.Module):
     out: int
     out_gain: float
     activation: str = "tanh"
+    onehots: OneHots = ()
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        return dense_stack(x, self.hidden, self.out, self.out_gain, self.activation)
+        return dense_stack(x, self.hidden, self.out, self.out_gain, self.activation,
+                           self.onehots)
 
 
 class Actor(nn.Module):
@@ -90,7 +130,8 @@ class Actor(nn.Module):
     ``n_out`` continuous dimensions a :class:`DiagGaussian` with a state-independent
     log-std, or with ``bins >= 2`` a :class:`Discretized` over ``bins`` values of each
     dimension from ``low`` to ``high`` (:meth:`for_space` picks from an action space).
-    Its output layer is ``out``."""
+    Its output layer is ``out``; its first layer reads the observation's ``onehots``
+    blocks by :class:`InputDense`."""
 
     hidden: Sequence[int]
     n_out: int
@@ -99,28 +140,30 @@ class Actor(nn.Module):
     bins: int = 0
     low: tuple[float, ...] = ()
     high: tuple[float, ...] = ()
+    onehots: OneHots = ()
 
     @classmethod
     def for_space(cls, space: gym.spaces.Space, hidden: Sequence[int],
-                  activation: str, bins: int = 0) -> Actor:
+                  activation: str, bins: int = 0, onehots: OneHots = ()) -> Actor:
         """The actor of a ``Discrete`` or a 1-D ``Box`` action space (with ``bins``, a
         ``Box`` of finite bounds takes the discretized policy)."""
         if isinstance(space, gym.spaces.Discrete):
-            return cls(tuple(hidden), int(space.n), True, activation)
+            return cls(tuple(hidden), int(space.n), True, activation, onehots=onehots)
         if isinstance(space, gym.spaces.Box) and len(space.shape) == 1:
             if not bins:
-                return cls(tuple(hidden), int(space.shape[0]), False, activation)
+                return cls(tuple(hidden), int(space.shape[0]), False, activation,
+                           onehots=onehots)
             if not (np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))):
                 raise ValueError(f"action_bins needs an action space of finite bounds, got "
                                  f"{space}")
             return cls(tuple(hidden), int(space.shape[0]), False, activation, bins,
-                       tuple(map(float, space.low)), tuple(map(float, space.high)))
+                       tuple(map(float, space.low)), tuple(map(float, space.high)), onehots)
         raise ValueError(f"no policy for action space {space}")
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> Distribution:
         width = self.n_out * self.bins if self.bins else self.n_out
-        out = dense_stack(obs, self.hidden, width, 0.01, self.activation)
+        out = dense_stack(obs, self.hidden, width, 0.01, self.activation, self.onehots)
         if self.discrete:
             return Categorical(out)
         if self.bins:
@@ -151,18 +194,20 @@ class Critics(nn.Module):
     k: int
     n_out: int = 1
     activation: str = "tanh"
+    onehots: OneHots = ()
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         heads = nn.vmap(MLP, variable_axes={"params": 0}, split_rngs={"params": True},
                         in_axes=None, out_axes=-2, axis_size=self.k)
-        return heads(self.hidden, self.n_out, 1.0, self.activation, name="heads")(obs)
+        return heads(self.hidden, self.n_out, 1.0, self.activation, self.onehots,
+                     name="heads")(obs)
 
     def head(self, params: dict, index: jax.Array, obs: jax.Array) -> jax.Array:
         """Head ``index``'s outputs ``[..., n_out]`` alone (one MLP instead of ``k``;
         the gradient reaches only that head's slice of ``params``)."""
         one = jax.tree.map(lambda x: x[index], params["heads"])
-        mlp = MLP(self.hidden, self.n_out, 1.0, self.activation, parent=None)
+        mlp = MLP(self.hidden, self.n_out, 1.0, self.activation, self.onehots, parent=None)
         return mlp.apply({"params": one}, obs)
 
 

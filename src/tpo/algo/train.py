@@ -148,9 +148,11 @@ class Trainer:
         self.loose = completion | (config.telescope == "roots") & ~self.telescoped
         #: penalty form: each constraint's margin below its slack (capped at half the slack)
         self.margin = (config.margin * ranges).astype(np.float32)
+        #: the observation's blocks of one non-zero number, read by gathers (InputDense)
+        onehots = tuple(map(tuple, getattr(env, "observation_onehots", ())))
         try:
             self.actor = Actor.for_space(space, config.hidden, config.activation,
-                                         config.action_bins)
+                                         config.action_bins, onehots)
         except ValueError as err:
             raise ConfigError(str(err)) from None
         #: the steps per env of a rollout whose ``s_{t+1}`` gets its own critic call
@@ -165,7 +167,8 @@ class Trainer:
         self.views = np.concatenate([whole, *[np.asarray(v, np.float32)[None] for v in
                                               getattr(env, "observation_views", ())]])
         n_out = 1 + int(space.n) if self.restricts else 1
-        self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation)
+        self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation,
+                               onehots)
         n_phases = self.problem.n_phases
         if config.phase_fractions is not None and len(config.phase_fractions) != n_phases:
             raise ConfigError(f"phase_fractions has {len(config.phase_fractions)} values for "

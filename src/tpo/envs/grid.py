@@ -144,6 +144,17 @@ class GridNav(JaxEnv):
         factored = np.arange(self.obs_shape[0]) < h + w + len(MOVES) + 2
         return ~factored, factored
 
+    @property
+    def observation_onehots(self) -> tuple[tuple[int, int], ...]:
+        """The blocks ``(start, stop)`` of the observation that hold exactly one 1 (the
+        row's and the column's one-hots, the cell's): a network reads each as a row
+        of its first layer, not a product (:class:`tpo.algo.networks.InputDense`)."""
+        h, w = self.navmap.shape
+        factored = ((0, h), (h, h + w))
+        return {"factored": factored, "onehot": ((0, h * w),), "coords": (),
+                "factored+onehot": (*factored, (h + w + len(MOVES) + 2, self.obs_shape[0]))
+                }[self.observation]
+
     def to_spec(self) -> dict[str, Any]:
         """What rebuilds this env (:func:`tpo.envs.from_spec`); the map travels as
         TOML text."""

@@ -110,6 +110,9 @@ class HostEnv:
         self.reward_high = np.asarray(reward_space.high, np.float32).reshape(-1)
         self._encode, self.obs_shape = _observation_encoder(probe.observation_space,
                                                             self.name)
+        #: a Discrete observation's one-hot is one block of one 1 (see GridNav's)
+        self.observation_onehots = (((0, self.obs_shape[0]),) if isinstance(
+            probe.observation_space, gym.spaces.Discrete) else ())
         space = probe.action_space
         # The policy's action space: a Discrete space counts from 0 for the policy.
         if isinstance(space, gym.spaces.Discrete):
