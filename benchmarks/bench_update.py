@@ -85,10 +85,9 @@ def main() -> None:
     print("|---|---:|---:|---:|")
     for name in progs["dense"]:
         d, g = times["dense", name], times["gathered", name]
-        ratio = statistics.median(a / b for a, b in zip(g, d, strict=True))
+        ratios = [a / b for a, b in zip(g, d, strict=True)]
         print(f"| {name} | {statistics.median(d):.1f} | {statistics.median(g):.1f} | "
-              f"{ratio:.3f} ({min(a / b for a, b in zip(g, d)):.3f}-"
-              f"{max(a / b for a, b in zip(g, d)):.3f}) |")
+              f"{statistics.median(ratios):.3f} ({min(ratios):.3f}-{max(ratios):.3f}) |")
 
 
 if __name__ == "__main__":
