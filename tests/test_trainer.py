@@ -398,12 +398,12 @@ def test_one_critic_head_equals_its_column_of_all_heads():
 
 def test_a_first_layer_reads_one_hot_blocks_by_hand():
     """InputDense: with kernel rows k_i = (i + 1, -i - 1) and bias (1, 0), blocks
-    (1, 4) and (4, 7): the input (0.5 | 0, 2, 0 | 0, 0, 0) gives 0.5 k_0 + 2 k_2 +
+    (4, 7) and (1, 4) (in any order): the input (0.5 | 0, 2, 0 | 0, 0, 0) gives 0.5 k_0 + 2 k_2 +
     bias = (7.5, -6.5) (an empty block adds nothing), (0 | 0, 0, 1 | 0, 3, 0) gives
     k_3 + 3 k_5 + bias = (23, -22)."""
     from tpo.algo.networks import InputDense
 
-    layer = InputDense(2, ((1, 4), (4, 7)), lambda key, shape, dtype: jnp.stack(
+    layer = InputDense(2, ((4, 7), (1, 4)), lambda key, shape, dtype: jnp.stack(
         [jnp.arange(1.0, 8.0), -jnp.arange(1.0, 8.0)], -1))
     x = jnp.array([[0.5, 0, 2, 0, 0, 0, 0], [0, 0, 0, 1, 0, 3, 0]])
     params = layer.init(jax.random.key(0), x)

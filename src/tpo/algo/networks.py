@@ -79,7 +79,7 @@ class InputDense(nn.Module):
                             jnp.float32)
         y = self.param("bias", nn.initializers.zeros, (self.features,), jnp.float32)
         start = 0
-        for a, b in [*self.onehots, (x.shape[-1], x.shape[-1])]:
+        for a, b in [*sorted(self.onehots), (x.shape[-1], x.shape[-1])]:
             if a > start:  # the dense numbers before this block
                 y = y + x[..., start:a] @ kernel[start:a]
             if b > a:
