@@ -144,7 +144,8 @@ def test_factored_onehot_observation_has_two_views():
 
 def test_observations_declare_their_one_hot_blocks():
     """TINY (4 x 5, 6 free cells): the row's one-hot is numbers 0-3, the column's 4-8,
-    the free cell's the last 6; each block of every cell's observation holds one 1."""
+    the free cell's the last 6; each block holds one 1 at every free cell, and the
+    cell's block none at a wall."""
     blocks = {kind: GridNav(parse_map(TINY), observation=kind).observation_onehots
               for kind in OBSERVATIONS}
     assert blocks == {"factored": ((0, 4), (4, 9)), "onehot": ((0, 20),), "coords": (),
@@ -154,6 +155,7 @@ def test_observations_declare_their_one_hot_blocks():
     for a, b in blocks["factored+onehot"]:
         assert (table[free][:, a:b].sum(-1) == 1).all()
         assert set(np.unique(table[..., a:b]).tolist()) == {0.0, 1.0}
+    assert not table[~free][:, 15:].any()
 
 
 def test_auto_observation_adds_the_cell_up_to_a_size():

@@ -403,19 +403,26 @@ def test_a_first_layer_reads_one_hot_blocks_by_hand():
     k_3 + 3 k_5 + bias = (23, -22)."""
     from tpo.algo.networks import InputDense
 
-    layer = InputDense(2, ((4, 7), (1, 4)), lambda key, shape, dtype: jnp.stack(
-        [jnp.arange(1.0, 8.0), -jnp.arange(1.0, 8.0)], -1))
+    def nn_init(key, shape, dtype):
+        return jnp.stack([jnp.arange(1.0, 8.0), -jnp.arange(1.0, 8.0)], -1)
+
+    layer = InputDense(2, ((4, 7), (1, 4)), nn_init)
     x = jnp.array([[0.5, 0, 2, 0, 0, 0, 0], [0, 0, 0, 1, 0, 3, 0]])
     params = layer.init(jax.random.key(0), x)
     params = jax.tree.map(lambda p: p + jnp.array([1.0, 0.0]) if p.ndim == 1 else p, params)
     np.testing.assert_allclose(layer.apply(params, x), [[7.5, -6.5], [23, -22]])
+    for bad in [((0, 5), (3, 7)), ((1, 4), (1, 4)), ((2, 2),), ((5, 9),)]:
+        with pytest.raises(ValueError, match="not disjoint, non-empty ranges of an input "
+                                             "of 7 numbers"):
+            InputDense(2, bad, nn_init).init(jax.random.key(0), x)
 
 
-@pytest.mark.parametrize("observation", ["factored+onehot", "onehot"])
+@pytest.mark.parametrize("observation", ["factored+onehot", "factored", "onehot"])
 def test_one_hot_blocks_change_no_number_of_the_networks(observation):
-    """The actor and critics that gather the grid's one-hot blocks are initialised
-    exactly as plain dense layers, and agree with them in outputs and gradients on
-    every cell of `home`."""
+    """The actor and critics (all heads, and one alone) that gather the grid's one-hot
+    blocks are initialised exactly as plain dense layers, and agree with them in
+    outputs and gradients on every cell of `home` (factored: dense numbers after
+    the last block)."""
     from tpo.algo.networks import init_params
 
     env = GridNav(load_map("home"), observation=observation)
@@ -436,7 +443,9 @@ def test_one_hot_blocks_change_no_number_of_the_networks(observation):
         np.testing.assert_allclose(total(p, net), total(p, plain), rtol=1e-5)
         jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5),
                      jax.grad(total)(p, net), jax.grad(total)(p, plain))
-
+    np.testing.assert_allclose(tr.critics.head(params["critics"], 2, obs),
+                               plain_critics.head(params["critics"], 2, obs), rtol=1e-5,
+                               atol=1e-6)
 
 
 @pytest.mark.parametrize("shape", [(7, 16), (16, 16), (16, 3), (2, 3, 4), (3, 2)])

@@ -8,6 +8,7 @@ at once on a two-thread pool (docs/design.md §5).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
@@ -67,7 +68,9 @@ class InputDense(nn.Module):
     whose ``onehots`` blocks hold at most one non-zero number each: a block's product
     ``x[a:b] @ kernel[a:b]`` is its one non-zero ``x[a + i] * kernel[a + i]``, a row
     gathered instead of a matrix product (the grid's free-cell one-hot is 194 of
-    ``home``'s 241 numbers: docs/notes/tpo-learning.md, session 29)."""
+    ``home``'s 241 numbers: docs/notes/tpo-learning.md, session 29). The same
+    outputs and parameter gradients as ``nn.Dense`` (to rounding), not the same
+    gradient with respect to ``x``."""
 
     features: int
     onehots: OneHots
@@ -78,8 +81,12 @@ class InputDense(nn.Module):
         kernel = self.param("kernel", self.kernel_init, (x.shape[-1], self.features),
                             jnp.float32)
         y = self.param("bias", nn.initializers.zeros, (self.features,), jnp.float32)
-        start = 0
-        for a, b in [*sorted(self.onehots), (x.shape[-1], x.shape[-1])]:
+        blocks, start = sorted(self.onehots), 0
+        if any(not 0 <= a < b <= x.shape[-1] for a, b in blocks) or any(
+                b > a for (_, b), (a, _) in itertools.pairwise(blocks)):
+            raise ValueError(f"one-hot blocks {self.onehots} are not disjoint, non-empty "
+                             f"ranges of an input of {x.shape[-1]} numbers")
+        for a, b in [*blocks, (x.shape[-1], x.shape[-1])]:
             if a > start:  # the dense numbers before this block
                 y = y + x[..., start:a] @ kernel[start:a]
             if b > a:

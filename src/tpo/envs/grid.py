@@ -146,9 +146,10 @@ class GridNav(JaxEnv):
 
     @property
     def observation_onehots(self) -> tuple[tuple[int, int], ...]:
-        """The blocks ``(start, stop)`` of the observation that hold exactly one 1 (the
-        row's and the column's one-hots, the cell's): a network reads each as a row
-        of its first layer, not a product (:class:`tpo.algo.networks.InputDense`)."""
+        """The blocks ``(start, stop)`` of the observation that hold at most one 1
+        (the row's and the column's one-hots, the free cell's, all zero at a wall):
+        a network reads each as a row of its first layer, not a product
+        (:class:`tpo.algo.networks.InputDense`)."""
         h, w = self.navmap.shape
         factored = ((0, h), (h, h + w))
         return {"factored": factored, "onehot": ((0, h * w),), "coords": (),
