@@ -399,7 +399,7 @@ def test_one_critic_head_equals_its_column_of_all_heads():
 def test_a_first_layer_reads_one_hot_blocks_by_hand():
     """InputDense: with kernel rows k_i = (i + 1, -i - 1) and bias (1, 0), blocks
     (4, 7) and (1, 4) (in any order): the input (0.5 | 0, 2, 0 | 0, 0, 0) gives 0.5 k_0 + 2 k_2 +
-    bias = (7.5, -6.5) (an empty block adds nothing), (0 | 0, 0, 1 | 0, 3, 0) gives
+    bias = (7.5, -6.5) (a block of zeros adds nothing), (0 | 0, 0, 1 | 0, 3, 0) gives
     k_3 + 3 k_5 + bias = (23, -22)."""
     from tpo.algo.networks import InputDense
 

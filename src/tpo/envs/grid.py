@@ -140,8 +140,7 @@ class GridNav(JaxEnv):
         :class:`tpo.algo.TPO`)."""
         if self.observation != "factored+onehot":
             return ()
-        h, w = self.navmap.shape
-        factored = np.arange(self.obs_shape[0]) < h + w + len(MOVES) + 2
+        factored = np.arange(self.obs_shape[0]) < self._factored_size
         return ~factored, factored
 
     @property
@@ -153,8 +152,14 @@ class GridNav(JaxEnv):
         h, w = self.navmap.shape
         factored = ((0, h), (h, h + w))
         return {"factored": factored, "onehot": ((0, h * w),), "coords": (),
-                "factored+onehot": (*factored, (h + w + len(MOVES) + 2, self.obs_shape[0]))
+                "factored+onehot": (*factored, (self._factored_size, self.obs_shape[0]))
                 }[self.observation]
+
+    @property
+    def _factored_size(self) -> int:
+        """How many numbers the factored part of the observation is (``H + W + 6``)."""
+        h, w = self.navmap.shape
+        return h + w + len(MOVES) + 2
 
     def to_spec(self) -> dict[str, Any]:
         """What rebuilds this env (:func:`tpo.envs.from_spec`); the map travels as
