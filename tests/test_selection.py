@@ -88,6 +88,23 @@ def test_a_phase_s_policy_that_the_leaf_beats_on_its_own_objective_is_no_candida
                       100.0)) == 0  # within 0.5 of the leaf's: it would answer
 
 
+def test_a_reference_before_the_last_candidate():
+    # The fan A>G, M>G: phases (avoid, monitor, goal, monitor under avoid), the leaf's
+    # (2) the reference. At slack 5 the goal is out of reach alike; the roots'
+    # completion keeps the avoid at 0 and reaches the study (74): it answers.
+    returns = jnp.array([[0.0, 0.0, -86.6, 0.0], [-9.0, 77.0, -86.6, 77.0],
+                         [0.0, 0.0, -86.6, 0.0], [0.0, 74.0, -86.6, 74.0]])
+    order = [2, 0, 1]
+    assert int(choose(returns, jnp.zeros(4), order, 10.0, reference=2)) == 3
+    # Its penalty counts against the leaf's (12 over 0), not against its own: the
+    # avoid's best then keeps the avoid phase's and the leaf's, tied: the leaf's.
+    penalty = jnp.array([0.0, 0.0, 0.0, 12.0])
+    assert int(choose(returns, penalty, order, 10.0, reference=2)) == 2
+    assert int(choose(returns, penalty, order, 10.0)) == 3  # the last as the reference
+    # Tied on every objective: the reference answers, though a later one ties too.
+    assert int(choose(jnp.zeros((4, 4)), jnp.zeros(4), order, 10.0, reference=2)) == 2
+
+
 @pytest.fixture(scope="module")
 def three_phases():
     env = GridNav(load_map("small"))

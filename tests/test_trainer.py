@@ -90,6 +90,56 @@ def test_completion_phases_follow_the_leaf_at_zero_slack():
     assert paper.reward.tolist() == [m, a, g] and paper.head.tolist() == [0, 1]
 
 
+def test_a_fan_learns_its_roots_completion_after_the_leaf():
+    low, high = np.full(3, -1.0), np.ones(3)
+    a, m, g = (OBJECTIVES.index(n) for n in ("avoid", "monitor", "goal"))
+    fan = Problem.build(ObjectiveGraph.parse("A>G, M>G", [3, 4], objectives=OBJECTIVES),
+                        OBJECTIVES, TPOConfig(), low, high)
+    assert fan.phase_names == ("avoid", "monitor", "goal", "monitor (under avoid)")
+    assert fan.reward.tolist() == [a, m, g, m]
+    # constraints: edges A->G (head 0) and M->G (head 1), then avoid (head 0) at zero
+    # slack (index n_edges = 2), kept by the last phase alone
+    assert fan.head.tolist() == [0, 1, 0] and fan.slack_index.tolist() == [0, 1, 2]
+    assert fan.active.tolist() == [[0, 0, 0], [0, 0, 0], [1, 1, 0], [0, 0, 1]]
+    assert fan.start.tolist() == [-1, 0, 1, 1]  # from monitor's own policy
+    assert fan.reference == 2  # the run's own policy is the leaf's
+    # three roots: each later one under the phase that holds the roots before it
+    three = Problem.build(ObjectiveGraph.parse("goal>avoid, monitor>avoid, x>avoid",
+                                               objectives=("goal", "avoid", "monitor", "x")),
+                          ("goal", "avoid", "monitor", "x"), TPOConfig(), np.full(4, -1.0),
+                          np.ones(4))
+    assert three.phase_names[4:] == ("monitor (under goal)", "x (under goal, monitor)")
+    assert three.head.tolist()[3:] == [0, 4] and three.active[5].tolist() == [0, 0, 0, 1, 1]
+    assert three.start.tolist()[4:] == [1, 2] and three.reference == 3
+    # none without the end-of-run choice, nor beside the full completion
+    for config in (TPOConfig(select=False), TPOConfig(completion=True)):
+        assert "(under" not in " ".join(Problem.build(
+            ObjectiveGraph.parse("A>G, M>G", objectives=OBJECTIVES), OBJECTIVES, config,
+            low, high).phase_names)
+    chain = Problem.build(ObjectiveGraph.parse("M>A>G", objectives=OBJECTIVES), OBJECTIVES,
+                          TPOConfig(), low, high)
+    assert chain.n_phases == 3 and chain.reference == 2 and chain.start.tolist() == [-1, 0, 1]
+
+
+def test_the_roots_completion_starts_from_its_roots_policy_and_the_leaf_answers(small):
+    train_env, _ = small
+    graph = ObjectiveGraph.parse("A>G, M>G", 100, objectives=OBJECTIVES)
+    config = TPOConfig(num_envs=4, num_steps=32, select=True)
+    trainer = Trainer(train_env, graph, config, 4 * 4 * 32 * 2)
+    state = trainer.init(jax.random.key(0))
+    run = jax.jit(trainer.run, static_argnums=2)
+    state, _ = run(state, trainer.slack_array(), int(trainer.phase_start[3]))
+    actor = jax.tree.map(np.asarray, state.params["actor"])
+    snapshots = jax.tree.map(np.asarray, state.snapshots)
+    leaves = jax.tree.leaves(jax.tree.map(lambda x, s: (np.array_equal(x, s[1]),
+                                                        np.array_equal(x, s[2])),
+                                          actor, snapshots))
+    assert all(leaves[0::2]) and not all(leaves[1::2])  # monitor's policy, not the leaf's
+    state, _ = run(state, trainer.slack_array(), trainer.num_updates - int(trainer.phase_start[3]))
+    assert int(trainer.acting(state, trainer.slack_array()).phase) == 2  # the leaf's constraints
+    assert int(trainer.final_acting(state, trainer.slack_array()).phase) == 2
+
+
 def test_restricted_rollouts_act_within_the_admissible_actions(small):
     train_env, _ = small
     graph = ObjectiveGraph.parse("A>G", 0, objectives=OBJECTIVES)
@@ -168,7 +218,7 @@ def test_a_telescoping_penalty_charges_the_advantage_itself_at_zero_slack(
 
 @pytest.mark.parametrize(("dag", "telescoped", "loose"), [
     ("M>A>G", [True, False], [False, True]),  # A's own constraint could pay for a gain
-    ("A>G, M>G", [True, True], [False, False]),  # both parents are roots
+    ("A>G, M>G", [True, True, True], [False] * 3),  # roots; the roots' completion's too
     ("G>M>A", [True, False], [False, True])])
 def test_telescope_roots_telescopes_the_roots_constraints_only(small, dag, telescoped, loose):
     """``telescope = "roots"`` (the default): a zero-slack constraint whose parent is a
@@ -178,11 +228,12 @@ def test_telescope_roots_telescopes_the_roots_constraints_only(small, dag, teles
     trainer = Trainer(train_env, graph, TPOConfig(), 10**6)
     assert (trainer.telescoped.tolist(), trainer.loose.tolist()) == (telescoped, loose)
     done = Trainer(train_env, graph, TPOConfig(completion=True), 10**6)
-    assert done.telescoped.tolist() == telescoped + [False] * 2  # the completion's: never
-    assert done.loose.tolist() == loose + [True] * 2
+    edges = len(graph.edges)  # no roots' completion beside the completion phases
+    assert done.telescoped.tolist() == telescoped[:edges] + [False] * 2  # the completion's
+    assert done.loose.tolist() == loose[:edges] + [True] * 2
     for mode, flag in (("off", False), ("all", True)):
         every = Trainer(train_env, graph, TPOConfig(telescope=mode), 10**6)
-        assert every.telescoped.tolist() == [flag] * 2 and not every.loose.any()
+        assert every.telescoped.tolist() == [flag] * len(telescoped) and not every.loose.any()
 
 
 def test_a_loose_zero_slack_constraint_counts_from_the_tolerance(small):
@@ -235,7 +286,8 @@ def test_the_multiplier_rises_over_the_warmup(small, update, scale):
     # only the leaf breaks ties: an inner phase keeps every action it is indifferent
     # among open to its descendants
     ("M>A>G", [[0, 0, 0], [0, 0, 0], [0.1 * 1 / 2, 0.01 * 1 / 2, 0]]),
-    ("A>G, M>G", [[0, 0, 0], [0, 0, 0], [0.1 * 1 / 2, 0.01 * 1 / 2, 0]]),  # roots A, M
+    ("A>G, M>G", [[0, 0, 0, 0], [0, 0, 0, 0], [0.1 * 1 / 2, 0.01 * 1 / 2, 0, 0],
+                  [0, 0, 0, 0]]),  # roots A, M; the roots' completion breaks none
     ("G>A", [[0, 0], [0.1 * 2 / 1, 0]])])
 def test_tie_break_weighs_the_leaf_s_ancestors_roots_first(small, dag, expected):
     train_env, _ = small

@@ -127,7 +127,9 @@ class TPOConfig:
     """end the run by choosing among the phases' final policies by their greedy Monte
     Carlo returns: the leaf's objective first, then its ancestors roots first, among
     the policies the leaf's constraint checks admit (the tie rule of docs/design.md
-    §2 applied to the policies the run has); false keeps the leaf's own policy"""
+    §2 applied to the policies the run has); on a graph of several roots (a fan) the
+    run then also learns the roots' completion, a candidate no objective's phase
+    learns (tpo.algo.phases.Problem); false keeps the leaf's own policy"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of
@@ -156,7 +158,7 @@ class TPOConfig:
     each step's penalty on its own action only); see docs/tpo-algorithm.md"""
     phase_fractions: tuple[float, ...] | None = field(default=None)
     """share of the timesteps of each phase: the objectives in topological order, then
-    the completion phases (default: equal)"""
+    the completion phases or the roots' completion (TPO.phases; default: equal)"""
     action_bins: int = 0
     """a continuous (Box) action's policy: 0 for a diagonal Gaussian, K >= 2 for a
     factorised categorical over K evenly spaced values of each dimension's bounds

@@ -26,7 +26,13 @@ class Problem:
     graph's objectives in topological order (Algorithm 1); then, with
     ``completion``, one *completion* phase per ancestor of the leaf, roots
     first, which keeps the leaf's and the earlier completion phases' values at
-    zero slack (the tie rule of docs/design.md §2, learned).
+    zero slack (the tie rule of docs/design.md §2, learned). Without it, a run
+    that ends by choosing among its phases' policies (``select``) on a graph of
+    several roots learns the *roots' completion* after the leaf: one phase for
+    every root after the first that keeps the earlier roots at zero slack
+    (``M`` under ``A`` in the fan ``A>G, M>G``), a policy that no objective's own
+    phase learns, and the tie rule's answer where the leaf is indifferent
+    (docs/notes/tpo-learning.md, session 30).
 
     Attributes:
         objectives: the env's objective names (reward columns).
@@ -43,6 +49,12 @@ class Problem:
         tie_bound: ``[P]`` the most the tie-break moves one step's advantage of phase
             ``p``: ``tie_break * range_p``, so an ancestor's large value-to-go (lost
             at a terminal step) never outweighs the phase's own advantage there.
+        start: ``[P]`` the phase whose final policy phase ``p`` starts from: the one
+            before it, but a roots' completion phase starts from its root's own
+            policy (which knows where that objective's reward lies).
+        reference: the phase whose policy is the run's own: the leaf's, or the last
+            completion phase's (the roots' completion phases only offer candidates).
+        phase_names: the objective of every phase, the extra phases marked.
     """
 
     objectives: tuple[str, ...]
@@ -54,6 +66,9 @@ class Problem:
     beta: np.ndarray
     tie: np.ndarray
     tie_bound: np.ndarray
+    start: np.ndarray
+    reference: int
+    phase_names: tuple[str, ...]
 
     @classmethod
     def build(cls, graph: ObjectiveGraph, objectives: Sequence[str], config: TPOConfig,
@@ -66,6 +81,9 @@ class Problem:
         rows = [[j for j, e in enumerate(graph.edges) if e in graph.ancestral_edges(n)]
                 for n in graph.order]
         reward = [col[n] for n in graph.order]
+        names = list(graph.order)
+        start = list(range(-1, len(reward) - 1))
+        roots = [n for n in graph.order if not graph.parents(n)]
         if config.completion and n_edges:
             kept = [*rows[-1], len(constraints)]
             constraints.append((phase[graph.leaf], n_edges))  # the leaf, at zero slack
@@ -74,7 +92,20 @@ class Problem:
                     kept = [*kept, len(constraints)]
                     constraints.append((len(reward) - 1, n_edges))
                 rows.append(kept)
+                start.append(len(reward) - 1)
                 reward.append(col[name])
+                names.append(f"{name} (completion)")
+        reference = len(reward) - 1
+        if config.select and not config.completion and len(roots) > 1:
+            kept, held = [], phase[roots[0]]  # the phase holding the roots before
+            for name in roots[1:]:
+                kept = [*kept, len(constraints)]
+                constraints.append((held, n_edges))
+                rows.append(kept)
+                start.append(phase[name])
+                reward.append(col[name])
+                names.append(f"{name} (under {', '.join(roots[:len(kept)])})")
+                held = len(reward) - 1
         active = np.zeros((len(rows), len(constraints)), np.float32)
         for p, row in enumerate(rows):
             active[p, row] = 1.0
@@ -91,7 +122,8 @@ class Problem:
         pairs = np.array(constraints, np.int32).reshape(-1, 2)
         return cls(tuple(objectives), graph, reward_arr, pairs[:, 0], pairs[:, 1], active,
                    beta.astype(np.float32), tie,
-                   (config.tie_break * ranges).astype(np.float32))
+                   (config.tie_break * ranges).astype(np.float32), np.array(start, np.int32),
+                   reference, tuple(names))
 
     @property
     def n_phases(self) -> int:
@@ -101,12 +133,6 @@ class Problem:
         """Every constraint's slack ``[C]`` from the edges' ``slack [n_edges]`` (zero
         for the completion constraints)."""
         return jnp.concatenate([slack, jnp.zeros(1)])[jnp.asarray(self.slack_index)]
-
-    @property
-    def phase_names(self) -> tuple[str, ...]:
-        """The objective of every phase; a completion phase is marked as such."""
-        order = self.graph.order
-        return order + tuple(f"{n} (completion)" for n in order[:self.n_phases - len(order)])
 
 
 class Acting(NamedTuple):

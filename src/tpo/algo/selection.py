@@ -23,13 +23,14 @@ from tpo.tabular.judge import ABS_TOL, REL_TOL
 
 
 def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
-           penalty_tolerance: float | jax.Array, held: jax.Array | None = None) -> jax.Array:
+           penalty_tolerance: float | jax.Array, held: jax.Array | None = None,
+           reference: int = -1) -> jax.Array:
     """The index of the answering candidate, lexicographically.
 
     ``returns [N, P]``: candidate ``n``'s return of phase ``p``'s objective;
     ``penalty [N]``: its total violation of the leaf's constraints (the leaf
-    phase's own checks); the reference candidate, the leaf's own policy, is the
-    last. A candidate is admissible when its penalty is at most the reference's
+    phase's own checks); ``reference`` is the candidate that is the run's own
+    policy (the leaf's, by default the last). A candidate is admissible when its penalty is at most the reference's
     plus ``penalty_tolerance``, and when on its own phase's objective it is no
     worse than the reference: a phase's policy stands in for
     that objective's optimum under constraints the leaf keeps too, so one that
@@ -41,25 +42,27 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     real loss of a few reward units. Among the
     admissible ones, keep those tied with the best return of phase ``p`` for each
     ``p`` in ``order`` (the leaf's objective first, then its ancestors roots
-    first), and of those the latest (the reference where it is still tied).
+    first), and of those the reference if it is still tied, else the latest.
     Returns tie as the judge's verdicts do: within 2 % of the reference's, or 0.5
     (:func:`tpo.tabular.judge.tolerance`).
     """
     n = returns.shape[0]
-    tolerance = _tolerance(returns[-1])
-    own = jnp.diagonal(returns) >= returns[-1] - tolerance
-    keep = own & (penalty <= penalty[-1] + penalty_tolerance)
+    ref = returns[reference]
+    tolerance = _tolerance(ref)
+    own = jnp.diagonal(returns) >= ref - tolerance
+    keep = own & (penalty <= penalty[reference] + penalty_tolerance)
     if held is not None:  # lexicographically no worse on the held objectives
         held = jnp.asarray(held, bool)
         decided = jnp.zeros(n, bool)
         for p in order:
-            worse = held[p] & (returns[:, p] < returns[-1, p] - tolerance[p])
+            worse = held[p] & (returns[:, p] < ref[p] - tolerance[p])
             keep = keep & (decided | ~worse)
-            decided = decided | held[p] & (returns[:, p] > returns[-1, p] + tolerance[p])
+            decided = decided | held[p] & (returns[:, p] > ref[p] + tolerance[p])
     for p in order:
         best = jnp.max(jnp.where(keep, returns[:, p], -jnp.inf))
         keep = keep & (returns[:, p] >= best - tolerance[p])
-    return jnp.max(jnp.where(keep, jnp.arange(n), -1))
+    index = jnp.arange(n)
+    return jnp.where(keep[reference], index[reference], jnp.max(jnp.where(keep, index, -1)))
 
 
 def choose_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[int, int]],

@@ -144,7 +144,8 @@ class Trainer:
             for h in self.problem.head], bool)
         #: the zero-slack constraints counted from the tolerance: the completion's, and
         #: with ``telescope = "roots"`` every one that does not telescope
-        completion = self.problem.slack_index == len(graph.edges)
+        completion = (self.problem.slack_index == len(graph.edges)) & (
+            self.problem.head >= len(order) - 1)
         self.loose = completion | (config.telescope == "roots") & ~self.telescoped
         #: penalty form: each constraint's margin below its slack (capped at half the slack)
         self.margin = (config.margin * ranges).astype(np.float32)
@@ -269,7 +270,8 @@ class Trainer:
         of ``phase`` (by default the phase of the last update done: the learned
         policy once the run is over)."""
         if phase is None:
-            phase = self.phase_of(jnp.maximum(state.update - 1, 0))
+            phase = jnp.minimum(self.phase_of(jnp.maximum(state.update - 1, 0)),
+                                self.problem.reference)
         return Acting(state.params["actor"], state.params["critics"], state.value_norm,
                       jnp.asarray(slack, jnp.float32), jnp.asarray(phase, jnp.int32))
 
@@ -378,6 +380,14 @@ class Trainer:
         state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr, ent_coef)
         state = state.replace(snapshots=stack_snapshot(state.snapshots, phase,
                                                        state.params["actor"]))
+        start = self.problem.start
+        if np.any(start != np.arange(len(start)) - 1):  # a phase starts from another's policy
+            after = self.phase_of(state.update)
+            source = jnp.asarray(start)[after]
+            switch = (state.update == jnp.asarray(self.phase_start)[after]) & (source != phase)
+            actor = _where_tree(switch, jax.tree.map(lambda s: s[source], state.snapshots),
+                                state.params["actor"])
+            state = state.replace(params={**state.params, "actor": actor})
         excluded = 0.0 if rollout.allowed is None else 1.0 - rollout.allowed.mean()
         metrics = {"phase": phase, "lr": lr,
                    "penalty": penalty.mean(), "violation_rate": (penalty > 0).mean(),
@@ -626,7 +636,8 @@ class Trainer:
         zero = (prob.constraint_slacks(slack) <= 0) & (jnp.asarray(prob.active[leaf]) > 0)
         held = jnp.zeros(prob.n_phases, bool).at[jnp.asarray(prob.head)].max(zero)
         return choose(returns, penalty, self.tie_order,
-                      SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)), held)
+                      SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)), held,
+                      prob.reference)
 
     @property
     def leaf_phase(self) -> int:
@@ -655,9 +666,8 @@ class Trainer:
         answer)."""
         env = self.env if env is None else env
         returns, penalty = jax.vmap(lambda s: self.candidates(s, slack, env))(states)
-        last = self.problem.n_phases - 1
         picks = (jax.vmap(partial(self.pick, slack))(returns, penalty) if self.selects
-                 else jnp.full(returns.shape[0], last))
+                 else jnp.full(returns.shape[0], self.problem.reference))
         graph = self.problem.graph
         phase = {name: i for i, name in enumerate(graph.order)}
         edges = [(phase[e.parent], phase[e.child]) for e in graph.edges]
@@ -678,7 +688,7 @@ class Trainer:
 
     def final_acting(self, state: TrainState, slack: jax.Array) -> Acting:
         """What the run's policy acts with once it is over."""
-        return self.acting(state, slack, jnp.int32(self.problem.n_phases - 1))
+        return self.acting(state, slack, jnp.int32(self.problem.reference))
 
     def score(self, state: TrainState, slack: jax.Array, ep: Episodes
               ) -> tuple[jax.Array, jax.Array]:

@@ -63,8 +63,9 @@ FIGURE3_SLACKS = (0.0, 100.0)
 # (docs/notes/tpo-learning.md, session 26): panel (b) explores under a slack-0 root at
 # every slack and takes the whole budget (40/40 LAR-correct; 40/40 on 1.5 M); (a) half
 # (40/40, as on 0.75 M); (c) and Figure 3 three quarters (on half, (c) fell to 15/40 and
-# Figure 3's (100, 0) to 3/5); the fan (d) a third (30/30 LAR-correct, as on half).
-SHARES = {"a": 1 / 2, "b": 1.0, "c": 3 / 4, "d": 1 / 3, "fig3": 3 / 4}
+# Figure 3's (100, 0) to 3/5); the fan (d) half, for its four phases (the roots'
+# completion among them): 30/30 same values, against 21/30 on a third (session 30).
+SHARES = {"a": 1 / 2, "b": 1.0, "c": 3 / 4, "d": 1 / 2, "fig3": 3 / 4}
 # The continuous robot's panels (tpo reproduce --continuous ACTION): each of Figure 2's
 # DAGs, and Figure 3, at slack 0 and 100 only, in the penalty form (the paper's, the
 # only one for a Gaussian policy); their budget is Settings.continuous_steps.
