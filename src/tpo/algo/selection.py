@@ -4,7 +4,9 @@ Where the leaf is indifferent (its goal out of reach within the slack), the
 leaf's phase leaves its policy to chance, while the tie rule of
 docs/design.md §2 (lexicographic completion) gives the remaining freedom to the
 ancestors, roots first. The policies the ancestors' own phases ended with are
-often exactly that completion (measured in docs/notes/tpo-learning.md), so the
+often exactly that completion (measured in docs/notes/tpo-learning.md; a fan's
+roots keep nothing of each other, so there a phase after the leaf learns it:
+:class:`tpo.algo.phases.Problem`), so the
 run ends by choosing among the phases' final policies, judged by their greedy
 Monte Carlo returns: the tie rule, applied to the candidates the run already has.
 A population of independent learners (:class:`tpo.algo.TPO`'s ``population``)
@@ -30,8 +32,9 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     ``returns [N, P]``: candidate ``n``'s return of phase ``p``'s objective;
     ``penalty [N]``: its total violation of the leaf's constraints (the leaf
     phase's own checks); ``reference`` is the candidate that is the run's own
-    policy (the leaf's, by default the last). A candidate is admissible when its penalty is at most the reference's
-    plus ``penalty_tolerance``, and when on its own phase's objective it is no
+    policy (the leaf's; by default the last). A candidate is admissible when its
+    penalty is at most the reference's plus ``penalty_tolerance``, and when on its
+    own phase's objective it is no
     worse than the reference: a phase's policy stands in for
     that objective's optimum under constraints the leaf keeps too, so one that
     the leaf's own policy beats there is not what it stands for. ``held [P]``

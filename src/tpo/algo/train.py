@@ -6,7 +6,8 @@ its ancestors' slacks in one of two forms (``TPOConfig.constraint``,
 docs/design.md §5): the paper's penalty, the generalized Lagrangian advantages
 of :mod:`tpo.algo.lagrangian` read from the frozen critics; or the restriction,
 sampling only the actions that LAR's rule admits on the frozen critics'
-advantage outputs, followed by the completion phases. With a one-objective
+advantage outputs; then the extra phases of :class:`tpo.algo.phases.Problem`
+(the completion, or a fan's roots' completion). With a one-objective
 graph this is plain PPO, the baseline, in the same code.
 
 The whole run is a loop over updates; the phase of an update is a traced
@@ -142,8 +143,9 @@ class Trainer:
         self.telescoped = np.array([config.telescope == "all" or (
             config.telescope == "roots" and h < len(order) and not graph.parents(order[h]))
             for h in self.problem.head], bool)
-        #: the zero-slack constraints counted from the tolerance: the completion's, and
-        #: with ``telescope = "roots"`` every one that does not telescope
+        #: the zero-slack constraints counted from the tolerance: the completion's (on the
+        #: leaf or a completion phase; a roots' completion keeps a root, as a root's edge
+        #: does), and with ``telescope = "roots"`` every one that does not telescope
         completion = (self.problem.slack_index == len(graph.edges)) & (
             self.problem.head >= len(order) - 1)
         self.loose = completion | (config.telescope == "roots") & ~self.telescoped
@@ -267,8 +269,9 @@ class Trainer:
     def acting(self, state: TrainState, slack: jax.Array,
                phase: jax.Array | None = None) -> Acting:
         """What the policy of ``state`` needs to act at ``slack``, under the constraints
-        of ``phase`` (by default the phase of the last update done: the learned
-        policy once the run is over)."""
+        of ``phase`` (by default the phase of the last update done, at most the
+        reference's: the learned policy once the run is over acts under the leaf's
+        constraints, or the last completion phase's)."""
         if phase is None:
             phase = jnp.minimum(self.phase_of(jnp.maximum(state.update - 1, 0)),
                                 self.problem.reference)
@@ -380,8 +383,10 @@ class Trainer:
         state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr, ent_coef)
         state = state.replace(snapshots=stack_snapshot(state.snapshots, phase,
                                                        state.params["actor"]))
+        # A phase that starts from another phase's final policy than the one before it
+        # (Problem.start) gets it now, so that its first rollout is already its own.
         start = self.problem.start
-        if np.any(start != np.arange(len(start)) - 1):  # a phase starts from another's policy
+        if np.any(start != np.arange(len(start)) - 1):
             after = self.phase_of(state.update)
             source = jnp.asarray(start)[after]
             switch = (state.update == jnp.asarray(self.phase_start)[after]) & (source != phase)
