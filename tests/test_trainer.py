@@ -38,14 +38,20 @@ def test_plain_ppo_learns_the_goal_exactly(small, seeds, at_least):
     at_least(0.8, np.abs(goal - best) <= 1e-6, {"exact goal": goal.tolist()})
 
 
+def two_updates_a_phase(env, dag, slack, **config):
+    """A trainer of ``dag`` with two updates of 4 envs x 32 steps a phase, its initial
+    state, and its jitted ``run``."""
+    graph = ObjectiveGraph.parse(dag, slack, objectives=OBJECTIVES)
+    config = TPOConfig(num_envs=4, num_steps=32, **config)
+    phases = Trainer(env, graph, config, 10**6).problem.n_phases
+    trainer = Trainer(env, graph, config, phases * 4 * 32 * 2)
+    return trainer, trainer.init(jax.random.key(0)), jax.jit(trainer.run, static_argnums=2)
+
+
 @pytest.mark.parametrize("constraint", ["penalty", "restriction"])
 def test_later_phases_leave_earlier_critics_frozen(small, constraint):
     train_env, _ = small
-    graph = ObjectiveGraph.parse("M>A>G", 0, objectives=OBJECTIVES)
-    config = TPOConfig(num_envs=4, num_steps=32, constraint=constraint)
-    trainer = Trainer(train_env, graph, config, 3 * 4 * 32 * 2)
-    state = trainer.init(jax.random.key(0))
-    run = jax.jit(trainer.run, static_argnums=2)
+    trainer, state, run = two_updates_a_phase(train_env, "M>A>G", 0, constraint=constraint)
     monitor, goal = 0, 2  # critic heads are phases, in topological order
     after_first, _ = run(state, trainer.slack_array(), int(trainer.phase_start[1]))
     final, metrics = run(after_first, trainer.slack_array(),
@@ -123,11 +129,8 @@ def test_a_fan_learns_its_roots_completion_after_the_leaf():
 
 def test_the_roots_completion_starts_from_its_roots_policy_and_the_leaf_answers(small):
     train_env, _ = small
-    graph = ObjectiveGraph.parse("A>G, M>G", 100, objectives=OBJECTIVES)
-    config = TPOConfig(num_envs=4, num_steps=32, select=True)
-    trainer = Trainer(train_env, graph, config, 4 * 4 * 32 * 2)
-    state = trainer.init(jax.random.key(0))
-    run = jax.jit(trainer.run, static_argnums=2)
+    trainer, state, run = two_updates_a_phase(train_env, "A>G, M>G", 100)
+    assert trainer.problem.n_phases == 4
     state, _ = run(state, trainer.slack_array(), int(trainer.phase_start[3]))
     actor = jax.tree.map(np.asarray, state.params["actor"])
     snapshots = jax.tree.map(np.asarray, state.snapshots)
