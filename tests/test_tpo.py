@@ -50,6 +50,20 @@ def test_a_model_saved_before_the_margin_existed_loads_without_it(model, tmp_pat
     assert (TPOConfig.from_dict({}).margin, TPOConfig.from_dict({}).tie_break) == (0.15, 0.1)
 
 
+def test_a_fan_saved_before_the_roots_completion_loads_with_its_three_phases(tmp_path):
+    old = TPOConfig(num_envs=8, num_steps=32, roots_completion=False)
+    model = TPO("small", "A>G, M>G", slack=5, config=old).learn(3 * 8 * 32)
+    path = model.save(tmp_path / "run")
+    meta = json.loads((path / "model.json").read_text())
+    del meta["config"]["roots_completion"]  # as tpo wrote it before the field
+    (path / "model.json").write_text(json.dumps(meta))
+    loaded = TPO.load(path)
+    assert loaded.phases == ("avoid", "monitor", "goal")
+    obs = model.eval_env.tabular_observations()
+    assert np.array_equal(model.predict(obs), loaded.predict(obs))
+    assert TPO("small", "A>G, M>G", config=CONFIG).phases[3] == "monitor (under avoid)"
+
+
 def test_a_restricted_model_acts_within_its_last_phase_and_round_trips(tmp_path):
     model = TPO("small", "A>G", slack=0, config=RESTRICTED, seed=2).learn(3 * 8 * 32 * 3)
     trainer = model.trainer

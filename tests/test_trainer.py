@@ -114,11 +114,14 @@ def test_a_fan_learns_its_roots_completion_after_the_leaf():
                                                objectives=("goal", "avoid", "monitor", "x")),
                           ("goal", "avoid", "monitor", "x"), TPOConfig(), np.full(4, -1.0),
                           np.ones(4))
-    assert three.phase_names[4:] == ("monitor (under goal)", "x (under goal, monitor)")
+    assert three.phase_names[4:] == ("monitor (under goal)", "x (under goal+monitor)")
     assert three.head.tolist()[3:] == [0, 4] and three.active[5].tolist() == [0, 0, 0, 1, 1]
     assert three.start.tolist()[4:] == [1, 2] and three.reference == 3
-    # none without the end-of-run choice, nor beside the full completion
-    for config in (TPOConfig(select=False), TPOConfig(completion=True)):
+    # none without the end-of-run choice, nor beside the full completion, nor in a
+    # config saved before it (a model of 3 phases loads as one)
+    for config in (TPOConfig(select=False), TPOConfig(completion=True),
+                   TPOConfig(roots_completion=False),
+                   TPOConfig.from_saved({"select": True})):
         assert "(under" not in " ".join(Problem.build(
             ObjectiveGraph.parse("A>G, M>G", objectives=OBJECTIVES), OBJECTIVES, config,
             low, high).phase_names)

@@ -22,7 +22,7 @@ REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of
 #: was trained without the feature
 ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
          "beta_warmup": 0.0, "telescope": "off", "advantage": "penalized",
-         "mixed_population": False}
+         "mixed_population": False, "roots_completion": False}
 
 
 #: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
@@ -127,9 +127,13 @@ class TPOConfig:
     """end the run by choosing among the phases' final policies by their greedy Monte
     Carlo returns: the leaf's objective first, then its ancestors roots first, among
     the policies the leaf's constraint checks admit (the tie rule of docs/design.md
-    §2 applied to the policies the run has); on a graph of several roots (a fan) the
-    run then also learns the roots' completion, a candidate no objective's phase
-    learns (tpo.algo.phases.Problem); false keeps the leaf's own policy"""
+    §2 applied to the policies the run has); false keeps the leaf's own policy"""
+    roots_completion: bool = True
+    """with select and without completion, on a graph of several roots (a fan): after
+    the leaf, a phase for every root after the first that learns it under the earlier
+    roots at zero slack, from its root's own policy — one more candidate for the
+    answer, the tie rule's where the leaf is indifferent, which no objective's own
+    phase learns there (tpo.algo.phases.Problem; docs/design.md §5)"""
     explore: float = 0.1
     """restriction: share of rollout steps that take a uniform random action instead of
     the policy's; they teach the critics' advantages every action and are left out of
@@ -231,7 +235,8 @@ class TPOConfig:
             value = getattr(self, name)
             if not isinstance(value, str) or value not in choices:
                 raise ConfigError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
-        for name in ("anneal_lr", "completion", "select", "mixed_population"):
+        for name in ("anneal_lr", "completion", "select", "roots_completion",
+                     "mixed_population"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.phase_fractions is not None:

@@ -28,7 +28,8 @@ class Problem:
     first, which keeps the leaf's and the earlier completion phases' values at
     zero slack (the tie rule of docs/design.md §2, learned). Without it, a run
     that ends by choosing among its phases' policies (``select``) on a graph of
-    several roots learns the *roots' completion* after the leaf: one phase for
+    several roots learns the *roots' completion* after the leaf
+    (``roots_completion``): one phase for
     every root after the first that keeps the earlier roots at zero slack
     (``M`` under ``A`` in the fan ``A>G, M>G``), a policy that no objective's own
     phase learns, and the tie rule's answer where the leaf is indifferent
@@ -96,7 +97,8 @@ class Problem:
                 reward.append(col[name])
                 names.append(f"{name} (completion)")
         reference = len(reward) - 1
-        if config.select and not config.completion and len(roots) > 1:
+        if config.select and config.roots_completion and not config.completion \
+                and len(roots) > 1:
             kept, held = [], phase[roots[0]]  # the phase holding the roots before
             for name in roots[1:]:
                 kept = [*kept, len(constraints)]
@@ -104,7 +106,7 @@ class Problem:
                 rows.append(kept)
                 start.append(phase[name])
                 reward.append(col[name])
-                names.append(f"{name} (under {', '.join(roots[:len(kept)])})")
+                names.append(f"{name} (under {'+'.join(roots[:len(kept)])})")
                 held = len(reward) - 1
         active = np.zeros((len(rows), len(constraints)), np.float32)
         for p, row in enumerate(rows):

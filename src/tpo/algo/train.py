@@ -144,8 +144,8 @@ class Trainer:
             config.telescope == "roots" and h < len(order) and not graph.parents(order[h]))
             for h in self.problem.head], bool)
         #: the zero-slack constraints counted from the tolerance: the completion's (on the
-        #: leaf or a completion phase; a roots' completion keeps a root, as a root's edge
-        #: does), and with ``telescope = "roots"`` every one that does not telescope
+        #: leaf or a completion phase; a roots' completion's on a root is kept as a root's
+        #: edge is), and with ``telescope = "roots"`` every one that does not telescope
         completion = (self.problem.slack_index == len(graph.edges)) & (
             self.problem.head >= len(order) - 1)
         self.loose = completion | (config.telescope == "roots") & ~self.telescoped
@@ -683,7 +683,7 @@ class Trainer:
     def candidates(self, state: TrainState, slack: jax.Array, env: Any
                    ) -> tuple[jax.Array, jax.Array]:
         """Every phase's final policy, acting greedily as the run's policy does (under
-        the last phase's constraints) for ``SELECT_EPISODES`` episodes of ``env`` (the
+        the reference phase's constraints) for ``SELECT_EPISODES`` episodes of ``env`` (the
         same for each), scored by :meth:`score`: ``[P, P]`` and ``[P]``. One candidate at a
         time (their episodes' critic activations are the memory)."""
         acting = self.final_acting(state, slack)
