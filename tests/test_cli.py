@@ -313,7 +313,8 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     gaussian = TPOConfig.defaults("gaussian")
     assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
     assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
-    continuous = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf"}
+    continuous = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
+                  "dead_zone": 0.5}
     robot = TPOConfig(action_bins=5, **continuous)
     assert RunSpec.from_settings({"dynamics": "continuous"}).config == robot
     assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \
@@ -326,8 +327,8 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     assert saved.config == TPOConfig()
     # A saved config from before telescope meant the paper's penalty and advantage, in any space.
     old_robot = RunSpec.from_settings({"dynamics": "continuous"}, saved=True).config
-    assert (old_robot.telescope, old_robot.advantage, old_robot.tie_critic) \
-        == ("off", "penalized", "ancestors")
+    assert (old_robot.telescope, old_robot.advantage, old_robot.tie_critic,
+            old_robot.dead_zone) == ("off", "penalized", "ancestors", 0.0)
     # ... and a telescope of true or false, written when it was a flag.
     assert TPOConfig.from_dict({"telescope": True}).telescope == "all"
     assert TPOConfig.from_dict({"telescope": False}).telescope == "off"

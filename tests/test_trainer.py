@@ -222,6 +222,29 @@ def test_a_telescoping_penalty_charges_the_advantage_itself_at_zero_slack(
         penalty, abs=1e-4)
 
 
+@pytest.mark.parametrize(("advantage", "penalty"), [(-0.25, 0.0), (0.3, 0.0), (-0.9, 0.4),
+                                                    (0.8, -0.3)])
+def test_a_dead_zone_charges_a_telescoped_advantage_beyond_it(small, advantage, penalty):
+    """``dead_zone`` 0.25 of the avoid's one-step reward range (2 on ``small``): an
+    advantage within 0.5 of 0 charges nothing; beyond it, all but the 0.5."""
+    train_env, _ = small
+    assert goal_phase_step(train_env, 0.0, advantage, telescope="all",
+                           dead_zone=0.25).penalty == pytest.approx(penalty, abs=1e-4)
+
+
+@pytest.mark.parametrize(("dag", "zones"), [("M>A>G", [0.0, 1.0]), ("A>M>G", [1.0, 0.0]),
+                                           ("A>G, M>G", [1.0, 0.0, 1.0]),
+                                           ("G>M>A", [0.0, 0.0])])
+def test_the_dead_zone_is_a_costs_alone(small, dag, zones):
+    """Only a constraint whose parent is a cost (avoid: rewards -2 to 0) gets the dead
+    zone (0.5 of avoid's range 2); monitor's (-1 to 1) and the goal's (-1) charge every
+    step of progress they lose."""
+    train_env, _ = small
+    graph = ObjectiveGraph.parse(dag, 0.0, objectives=OBJECTIVES)
+    trainer = Trainer(train_env, graph, TPOConfig(dead_zone=0.5), 10**6)
+    assert trainer.dead_zone.tolist() == zones
+
+
 @pytest.mark.parametrize(("dag", "telescoped", "loose"), [
     ("M>A>G", [True, False], [False, True]),  # A's own constraint could pay for a gain
     ("A>G, M>G", [True, True, True], [False] * 3),  # roots; the roots' completion's too

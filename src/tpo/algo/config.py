@@ -22,7 +22,7 @@ REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of
 #: was trained without the feature
 ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
          "beta_warmup": 0.0, "telescope": "off", "advantage": "penalized",
-         "mixed_population": False, "roots_completion": False}
+         "mixed_population": False, "roots_completion": False, "dead_zone": 0.0}
 
 
 #: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
@@ -44,8 +44,11 @@ POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
 #: infeasible state's relaxation per state as LAR's, and the tie-break valued by the
 #: leaf's own critic, which finds the leaf's way to an ancestor's reward that the
 #: ancestor's own path reached through the leaf's forbidden region
-#: (docs/notes/tpo-learning.md, sessions 19 to 21)
-CONTINUOUS_DEFAULTS = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf"}
+#: (docs/notes/tpo-learning.md, sessions 19 to 21), and a dead zone of half the
+#: parent's reward range on the telescoping penalty, so that the dips a stochastic
+#: root's critic has at doorways do not stop the phases under it (session 31)
+CONTINUOUS_DEFAULTS = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
+                       "dead_zone": 0.5}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
@@ -150,6 +153,15 @@ class TPOConfig:
     positive advantages can only be the critic's errors; a parent with constraints of
     its own gains where it breaks them, so its zero-slack constraints stay rectified,
     counted from the tolerance (docs/notes/tpo-learning.md, sessions 19 and 24)"""
+    dead_zone: float = 0.0
+    """penalty: a constraint that telescopes at zero slack, on a parent that is a cost
+    (its best one-step reward is 0, as avoid's), charges the parent's one-step advantage
+    only beyond this share of the parent's one-step reward range, either way
+    (soft-thresholded): the dips a cost's critic learns where its own stochastic policy
+    pays (a doorway, where it bumps), which its optimum (to pay nothing) has not, then
+    charge nothing, while a step onto a forbidden region keeps its cost less the zone; a
+    parent that rewards progress keeps every step's cost, standing still's included
+    (docs/notes/tpo-learning.md, session 31)"""
     beta_warmup: float = 0.0
     """penalty: share of every phase over which the multiplier rises linearly from 0
     to beta: a phase then explores before its constraints bind, which helps a child
@@ -223,6 +235,7 @@ class TPOConfig:
                               f"{MAX_BINS}, got {self.action_bins!r}")
         _nonnegative("tolerance", self.tolerance)
         _nonnegative("margin", self.margin)
+        _nonnegative("dead_zone", self.dead_zone)
         _nonnegative("explore", self.explore)
         _nonnegative("tie_break", self.tie_break)
         for name in ("explore", "tie_break"):

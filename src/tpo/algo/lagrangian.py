@@ -49,18 +49,23 @@ def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax
 
 
 def violations(advantages: jax.Array, parents: jax.Array, slack: jax.Array,
-               telescope: bool | jax.Array = False) -> jax.Array:
+               telescope: bool | jax.Array = False, dead_zone: float | jax.Array = 0.0
+               ) -> jax.Array:
     """``C_wv = max(0, -A_w - eta_wv)`` for every constraint (an edge ``(w, v)``, whose
     parent's advantage is column ``parents[c]``): ``[..., k] -> [..., C]`` (Prop. 1
     with the one-step advantage standing in for ``Q_w - V_w``). Where ``telescope``
     (one flag, or one per constraint ``[C]``), ``C_wv = -A_w`` where ``eta_wv`` is 0:
     equal under the parent's optimal critic (``A_w <= 0``), and a learned critic's
-    errors then cancel along a path."""
+    errors then cancel along a path; soft-thresholded by ``dead_zone`` ``d`` (one value,
+    or one per constraint), ``C_wv = sign(-A_w) max(0, |A_w| - d)``: an advantage
+    within ``d`` of 0 charges nothing."""
     if jnp.ndim(parents) != 1 or jnp.shape(slack) != jnp.shape(parents):
         raise ValueError(f"parents {jnp.shape(parents)} and slack {jnp.shape(slack)} must "
                          "be [C] each")
-    c = jnp.maximum(0.0, -advantages[..., parents] - slack)
-    return jnp.where(jnp.asarray(telescope) & (slack <= 0), -advantages[..., parents], c)
+    adv = advantages[..., parents]
+    c = jnp.maximum(0.0, -adv - slack)
+    shrunk = -jnp.sign(adv) * jnp.maximum(0.0, jnp.abs(adv) - dead_zone)
+    return jnp.where(jnp.asarray(telescope) & (slack <= 0), shrunk, c)
 
 
 def below_best(advantages: jax.Array, allowed: jax.Array) -> jax.Array:

@@ -151,6 +151,11 @@ class Trainer:
         self.loose = completion | (config.telescope == "roots") & ~self.telescoped
         #: penalty form: each constraint's margin below its slack (capped at half the slack)
         self.margin = (config.margin * ranges).astype(np.float32)
+        #: penalty form: each telescoping constraint's dead zone at zero slack, on a parent
+        #: that is a cost (its best one-step reward is 0: to pay nothing is free)
+        cost = np.asarray(env.reward_high, float)[
+            self.problem.reward[self.problem.head]] == 0
+        self.dead_zone = (config.dead_zone * ranges * cost).astype(np.float32)
         #: the observation's blocks of one non-zero number, read by gathers (InputDense)
         onehots = tuple(map(tuple, getattr(env, "observation_onehots", ())))
         try:
@@ -507,7 +512,7 @@ class Trainer:
         loose = jnp.asarray(self.loose) & (slacks <= 0)
         c = violations(adv_all, jnp.asarray(prob.head),
                        slacks - margin + jnp.where(loose, self.loose_tolerance(state), 0.0),
-                       jnp.asarray(self.telescoped))
+                       jnp.asarray(self.telescoped), jnp.asarray(self.dead_zone))
         penalty = c @ jnp.asarray(prob.active)[phase]  # zeros when no edges
         return rewards, value, next_value, adv_all, penalty
 
