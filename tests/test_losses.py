@@ -74,10 +74,14 @@ def test_ancestral_advantages_and_violations():
     assert np.allclose(violations(jnp.array([0.5, -2.0, -0.3]), jnp.array([0, 2, 0]), zero,
                                   True), [-0.5, 0.3, 0.0])
     # A dead zone of 0.4 shrinks a telescoped -A towards 0 by 0.4 (-0.5 -> -0.1; -A = 2
-    # -> 1.6) and leaves the rectified ones as they were; 0.6 swallows the 0.5 whole.
-    c = violations(jnp.array([0.5, -2.0, -0.3]), jnp.array([0, 1, 0]), zero,
+    # -> 1.6) and leaves a rectified one as it was (the third: max(0, 2 - 0) = 2), on
+    # leading [T, E] axes too; 0.6 swallows the 0.5 whole.
+    c = violations(jnp.array([0.5, -2.0, -0.3]), jnp.array([0, 1, 1]), jnp.zeros(3),
                    jnp.array([True, True, False]), 0.4)
-    assert np.allclose(c, [-0.1, 1.6, 0.0])
+    assert np.allclose(c, [-0.1, 1.6, 2.0])
+    c = violations(jnp.full((2, 4, 3), jnp.array([0.5, -2.0, -0.3])), jnp.array([0, 1, 1]),
+                   jnp.zeros(3), jnp.array([True, True, False]), jnp.array([0.4, 0.4, 0.4]))
+    assert c.shape == (2, 4, 3) and np.allclose(c, [-0.1, 1.6, 2.0])
     c = violations(jnp.array([0.5, -2.0, -0.3]), jnp.array([0, 2, 0]), zero, True,
                    jnp.array([0.6, 0.0, 0.6]))
     assert np.allclose(c, [0.0, 0.3, 0.0])

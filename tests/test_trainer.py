@@ -232,17 +232,18 @@ def test_a_dead_zone_charges_a_telescoped_advantage_beyond_it(small, advantage, 
                            dead_zone=0.25).penalty == pytest.approx(penalty, abs=1e-4)
 
 
-@pytest.mark.parametrize(("dag", "zones"), [("M>A>G", [0.0, 1.0]), ("A>M>G", [1.0, 0.0]),
-                                           ("A>G, M>G", [1.0, 0.0, 1.0]),
-                                           ("G>M>A", [0.0, 0.0])])
-def test_the_dead_zone_is_a_costs_alone(small, dag, zones):
-    """Only a constraint whose parent is a cost (avoid: rewards -2 to 0) gets the dead
-    zone (0.5 of avoid's range 2); monitor's (-1 to 1) and the goal's (-1) charge every
-    step of progress they lose."""
+@pytest.mark.parametrize(("dag", "telescope", "zones"), [
+    ("M>A>G", "all", [0.0, 1.0]), ("A>M>G", "all", [1.0, 0.0]),
+    ("A>G, M>G", "all", [1.0, 0.0, 1.0]), ("G>M>A", "all", [0.0, 0.0]),
+    ("M>A>G", "roots", [0.0, 0.0])])  # avoid is no root here: its constraint is rectified
+def test_the_dead_zone_is_a_telescoping_costs_alone(small, dag, telescope, zones):
+    """Only a telescoping constraint whose parent is a cost (avoid: rewards -2 to 0)
+    gets the dead zone (0.5 of avoid's range 2); monitor's (-1 to 1) and the goal's
+    (-1) charge every step of progress they lose."""
     train_env, _ = small
     graph = ObjectiveGraph.parse(dag, 0.0, objectives=OBJECTIVES)
-    trainer = Trainer(train_env, graph, TPOConfig(dead_zone=0.5), 10**6)
-    assert trainer.dead_zone.tolist() == zones
+    config = TPOConfig(dead_zone=0.5, telescope=telescope)
+    assert Trainer(train_env, graph, config, 10**6).dead_zone.tolist() == zones
 
 
 @pytest.mark.parametrize(("dag", "telescoped", "loose"), [

@@ -159,9 +159,11 @@ class TPOConfig:
     only beyond this share of the parent's one-step reward range, either way
     (soft-thresholded): the dips a cost's critic learns where its own stochastic policy
     pays (a doorway, where it bumps), which its optimum (to pay nothing) has not, then
-    charge nothing, while a step onto a forbidden region keeps its cost less the zone; a
-    parent that rewards progress keeps every step's cost, standing still's included
-    (docs/notes/tpo-learning.md, session 31)"""
+    charge nothing; a parent that rewards progress keeps every step's cost, standing
+    still's included. The price: a violation no larger than the zone charges nothing
+    either (at 0.5 a single bump of an exact avoid critic, -1); a step onto a forbidden
+    region charges by its depth in the critic, 6-8 on home's rug (docs/notes/tpo-learning.md,
+    session 31)"""
     beta_warmup: float = 0.0
     """penalty: share of every phase over which the multiplier rises linearly from 0
     to beta: a phase then explores before its constraints bind, which helps a child

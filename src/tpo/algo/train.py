@@ -151,11 +151,12 @@ class Trainer:
         self.loose = completion | (config.telescope == "roots") & ~self.telescoped
         #: penalty form: each constraint's margin below its slack (capped at half the slack)
         self.margin = (config.margin * ranges).astype(np.float32)
-        #: penalty form: each telescoping constraint's dead zone at zero slack, on a parent
-        #: that is a cost (its best one-step reward is 0: to pay nothing is free)
+        #: penalty form: each constraint's dead zone, where it telescopes (at zero slack)
+        #: and its parent is a cost (best one-step reward exactly 0: to pay nothing is free)
         cost = np.asarray(env.reward_high, float)[
             self.problem.reward[self.problem.head]] == 0
-        self.dead_zone = (config.dead_zone * ranges * cost).astype(np.float32)
+        self.dead_zone = (config.dead_zone * ranges * cost * self.telescoped
+                          ).astype(np.float32)
         #: the observation's blocks of one non-zero number, read by gathers (InputDense)
         onehots = tuple(map(tuple, getattr(env, "observation_onehots", ())))
         try:
