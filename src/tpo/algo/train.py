@@ -135,8 +135,8 @@ class Trainer:
                                      env.reward_high)
         #: each constraint's tolerance, a share of its parent's reward range (restriction:
         #: every constraint; penalty: the completion constraints, at zero slack)
-        ranges = reward_ranges(env.reward_low, env.reward_high)[
-            self.problem.reward[self.problem.head]]
+        parent = self.problem.reward[self.problem.head]  # each constraint's parent objective
+        ranges = reward_ranges(env.reward_low, env.reward_high)[parent]
         self.tolerance = (config.tolerance * ranges).astype(np.float32)
         order, graph = self.problem.graph.order, self.problem.graph
         #: the constraints that telescope at zero slack (``config.telescope``)
@@ -153,8 +153,7 @@ class Trainer:
         self.margin = (config.margin * ranges).astype(np.float32)
         #: penalty form: each constraint's dead zone, where it telescopes (at zero slack)
         #: and its parent is a cost (best one-step reward exactly 0: to pay nothing is free)
-        cost = np.asarray(env.reward_high, float)[
-            self.problem.reward[self.problem.head]] == 0
+        cost = np.asarray(env.reward_high, float)[parent] == 0
         self.dead_zone = (config.dead_zone * ranges * cost * self.telescoped
                           ).astype(np.float32)
         #: the observation's blocks of one non-zero number, read by gathers (InputDense)
