@@ -26,7 +26,8 @@ from tpo.tabular.judge import ABS_TOL, REL_TOL
 
 def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
            penalty_tolerance: float | jax.Array, held: jax.Array | None = None,
-           reference: int = -1) -> jax.Array:
+           reference: int = -1, edges: Sequence[tuple[int, int]] = (),
+           allowance: jax.Array | None = None) -> jax.Array:
     """The index of the answering candidate, lexicographically.
 
     ``returns [N, P]``: candidate ``n``'s return of phase ``p``'s objective;
@@ -42,7 +43,10 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     ``order``, a candidate must be lexicographically no worse than the reference
     (worse on one only where better on one before it), a check in the returns
     themselves where the penalty's allowance (the critics' noise) could hide a
-    real loss of a few reward units. Among the
+    real loss of a few reward units. With ``edges`` and ``allowance`` (as in
+    :func:`choose_member`), a candidate must also keep the leaf's ancestral edges
+    by LAR's rule on the candidates' returns, while one does: the reference may
+    itself have lost a zero-slack parent's best. Among the
     admissible ones, keep those tied with the best return of phase ``p`` for each
     ``p`` in ``order`` (the leaf's objective first, then its ancestors roots
     first), and of those the reference if it is still tied, else the latest.
@@ -61,6 +65,9 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
             worse = held[p] & (returns[:, p] < ref[p] - tolerance[p])
             keep = keep & (decided | ~worse)
             decided = decided | held[p] & (returns[:, p] > ref[p] + tolerance[p])
+    if edges:
+        lar = keepers(returns, returns, edges, allowance, max(order) + 1)
+        keep = keep & (lar | ~lar.any())
     for p in order:
         best = jnp.max(jnp.where(keep, returns[:, p], -jnp.inf))
         keep = keep & (returns[:, p] >= best - tolerance[p])
@@ -87,25 +94,37 @@ def choose_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[in
     such member.
     """
     m, n = returns.shape[:2]
-    pool = returns.reshape(m * n, -1)
     answers = returns[jnp.arange(m), picks]
-    objectives = max(order) + 1
-    in_pool, in_answers, best = [], [], []
-    for v in range(objectives):
-        keep_pool, keep_answers = jnp.ones(m * n, bool), jnp.ones(m, bool)
-        for e, (w, child) in enumerate(edges):
-            if child == v:
-                floor = best[w] - allowance[e] - _tolerance(best[w])
-                keep_pool = keep_pool & in_pool[w] & (pool[:, w] >= floor)
-                keep_answers = keep_answers & in_answers[w] & (answers[:, w] >= floor)
-        in_pool.append(keep_pool)
-        in_answers.append(keep_answers)
-        best.append(jnp.max(jnp.where(keep_pool, pool[:, v], -jnp.inf)))
-    keep = in_answers[-1] | ~in_answers[-1].any()
+    lar = keepers(returns.reshape(m * n, -1), answers, edges, allowance, max(order) + 1)
+    keep = lar | ~lar.any()
     for p in order:
         top = jnp.max(jnp.where(keep, answers[:, p], -jnp.inf))
         keep = keep & (answers[:, p] >= top - _tolerance(top))
     return jnp.argmax(keep)
+
+
+def keepers(pool: jax.Array, values: jax.Array, edges: Sequence[tuple[int, int]],
+            allowance: jax.Array, objectives: int) -> jax.Array:
+    """Which of ``values [N, P]`` keep the last objective's ancestral edges by LAR's
+    rule on the policies' returns ``pool [M, P]`` (:func:`choose_member`): taking the
+    objectives (the first ``objectives`` columns) in topological order, ``w``'s best
+    is its largest return among the policies of ``pool`` that keep ``w``'s ancestral
+    edges, and a policy keeps the edge ``(w, v)`` (``edges[e]``) when its return of
+    ``w`` is at least that best less ``allowance[e]`` and the judge's tolerance.
+    ``[N]`` bool."""
+    in_pool, in_values, best = [], [], []
+    for v in range(objectives):
+        keep_pool = jnp.ones(pool.shape[0], bool)
+        keep_values = jnp.ones(values.shape[0], bool)
+        for e, (w, child) in enumerate(edges):
+            if child == v:
+                floor = best[w] - allowance[e] - _tolerance(best[w])
+                keep_pool = keep_pool & in_pool[w] & (pool[:, w] >= floor)
+                keep_values = keep_values & in_values[w] & (values[:, w] >= floor)
+        in_pool.append(keep_pool)
+        in_values.append(keep_values)
+        best.append(jnp.max(jnp.where(keep_pool, pool[:, v], -jnp.inf)))
+    return in_values[-1]
 
 
 def _tolerance(value: jax.Array) -> jax.Array:

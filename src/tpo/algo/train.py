@@ -639,7 +639,8 @@ class Trainer:
     def pick(self, slack: jax.Array, returns: jax.Array, penalty: jax.Array) -> jax.Array:
         """The snapshot that :func:`tpo.algo.selection.choose` picks from the
         candidates' ``returns [P, P]`` and ``penalty [P]``, holding the parents of the
-        leaf's constraints at zero ``slack``."""
+        leaf's constraints at zero ``slack``, among those that keep the leaf's
+        ancestral edges by LAR's rule on the candidates."""
         prob = self.problem
         leaf = self.leaf_phase
         ranges = reward_ranges(self.env.reward_low, self.env.reward_high)[prob.reward]
@@ -647,7 +648,19 @@ class Trainer:
         held = jnp.zeros(prob.n_phases, bool).at[jnp.asarray(prob.head)].max(zero)
         return choose(returns, penalty, self.tie_order,
                       SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)), held,
-                      prob.reference)
+                      prob.reference, self.edges, self.allowance(slack))
+
+    @property
+    def edges(self) -> list[tuple[int, int]]:
+        """Every edge of the graph as its ``(parent, child)`` objectives' phases."""
+        graph = self.problem.graph
+        phase = {name: i for i, name in enumerate(graph.order)}
+        return [(phase[e.parent], phase[e.child]) for e in graph.edges]
+
+    def allowance(self, slack: jax.Array) -> jax.Array:
+        """The most each edge lets its child lose of the parent's value at the start
+        (a local ``slack`` eta allows eta / (1 - gamma))."""
+        return jnp.asarray(slack, jnp.float32) / (1 - self.config.gamma)
 
     @property
     def leaf_phase(self) -> int:
@@ -678,11 +691,8 @@ class Trainer:
         returns, penalty = jax.vmap(lambda s: self.candidates(s, slack, env))(states)
         picks = (jax.vmap(partial(self.pick, slack))(returns, penalty) if self.selects
                  else jnp.full(returns.shape[0], self.problem.reference))
-        graph = self.problem.graph
-        phase = {name: i for i, name in enumerate(graph.order)}
-        edges = [(phase[e.parent], phase[e.child]) for e in graph.edges]
-        allowance = jnp.asarray(slack, jnp.float32) / (1 - self.config.gamma)
-        member = choose_member(returns, picks, edges, allowance, self.tie_order)
+        member = choose_member(returns, picks, self.edges, self.allowance(slack),
+                               self.tie_order)
         return self._acting_with(jax.tree.map(lambda x: x[member], states), picks[member])
 
     def candidates(self, state: TrainState, slack: jax.Array, env: Any
