@@ -105,6 +105,29 @@ def test_a_reference_before_the_last_candidate():
     assert int(choose(jnp.zeros((4, 4)), jnp.zeros(4), order, 10.0, reference=2)) == 2
 
 
+def test_a_leaf_that_lost_a_zero_slack_parent_s_best_does_not_hand_it_to_the_root():
+    # G>M>A at (100, 0) on the continuous home, phases (goal, monitor, avoid): the
+    # monitor phase reaches the kitchen (61.7); the avoid leaf's policy lost it (0), and
+    # every candidate's avoid is the start's rug (-16.3). Against the leaf's own
+    # returns the goal phase's policy is no worse on the held monitor and better on the
+    # root: it answered. By LAR's rule on the candidates the answer keeps the
+    # monitor's best within the judge's tolerance: the monitor phase's policy.
+    returns = jnp.array([[-32.4, 0.0, -16.3], [-100.0, 61.7, -16.3], [-100.0, 0.0, -16.3]])
+    held, order = jnp.array([False, True, False]), [2, 0, 1]
+    allowance = jnp.array([10000.0, 0.0])  # local slacks (100, 0) over 1 - gamma
+    assert int(choose(returns, jnp.zeros(3), order, 10.0, held)) == 0
+    assert int(choose(returns, jnp.zeros(3), order, 10.0, held, edges=EDGES,
+                      allowance=allowance)) == 1
+    # A leaf within the tolerance of the monitor's best (2 %) keeps its own answer.
+    kept = returns.at[2, 1].set(60.6)
+    assert int(choose(kept, jnp.zeros(3), order, 10.0, held, edges=EDGES,
+                      allowance=allowance)) == 2
+    # No admissible candidate keeps the edges (the monitor's best is a policy whose
+    # penalty excludes it): the rule stands aside, and the answer is as without it.
+    assert int(choose(returns, jnp.array([0.0, 30.0, 0.0]), order, 10.0, held,
+                      edges=EDGES, allowance=allowance)) == 0
+
+
 @pytest.fixture(scope="module")
 def three_phases():
     env = GridNav(load_map("small"))

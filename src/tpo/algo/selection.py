@@ -45,8 +45,8 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     themselves where the penalty's allowance (the critics' noise) could hide a
     real loss of a few reward units. With ``edges`` and ``allowance`` (as in
     :func:`choose_member`), a candidate must also keep the leaf's ancestral edges
-    by LAR's rule on the candidates' returns, while one does: the reference may
-    itself have lost a zero-slack parent's best. Among the
+    by LAR's rule on the candidates' returns, if an admissible one does: the
+    reference may itself have lost a zero-slack parent's best. Among the
     admissible ones, keep those tied with the best return of phase ``p`` for each
     ``p`` in ``order`` (the leaf's objective first, then its ancestors roots
     first), and of those the reference if it is still tied, else the latest.
@@ -67,7 +67,7 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
             decided = decided | held[p] & (returns[:, p] > ref[p] + tolerance[p])
     if edges:
         lar = keepers(returns, returns, edges, allowance, max(order) + 1)
-        keep = keep & (lar | ~lar.any())
+        keep = jnp.where((keep & lar).any(), keep & lar, keep)
     for p in order:
         best = jnp.max(jnp.where(keep, returns[:, p], -jnp.inf))
         keep = keep & (returns[:, p] >= best - tolerance[p])
