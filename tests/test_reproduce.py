@@ -56,7 +56,11 @@ def test_each_panel_trains_its_share_of_the_budget():
     cont = settings.continuous_panels()
     assert [(p.key, xs) for p, xs in cont] == [
         (f"{n}-velocity", [0.0, 100.0]) for n in ("a", "b", "c", "d", "fig3")]
-    assert {settings.steps_of(p) for p, _ in cont} == {2_000_000}
+    assert {p.name: settings.steps_of(p) for p, _ in cont} == {
+        "a": 1_000_000, "b": 2_000_000, "c": 2_000_000, "d": 1_000_000, "fig3": 1_000_000}
+    assert budget_text(settings, continuous=True) == \
+        "2,000,000 in (b) (c), 1,000,000 in (a) (d) (fig3)"
+    assert replace(Settings.quick(), continuous=("a", "b")).steps_of(cont[1][0]) == 600_000
     assert [name for name, *_ in settings.jobs()][-5:] == [
         f"penalty-{n}-velocity" for n in ("a", "b", "c", "d", "fig3")]
     assert [p.key for p, _ in replace(settings, action="heading",
@@ -161,8 +165,9 @@ def test_verdict_table_and_csv_count_each_form_over_its_feasible_runs():
     ({"continuous": ("e",)}, r"continuous must name panels from a, b, c, d, fig3, got \('e',\)"),
     ({"continuous": "a"}, r"continuous must name panels from a, b, c, d, fig3, got 'a'"),
     ({"action": "jump"}, r"action must be one of velocity, heading, got 'jump'"),
-    ({"continuous_steps": 10}, r"panel \(a-velocity\) trains 10 steps per run "
-                               r"\(--continuous-steps\): total_timesteps must be an integer")])
+    ({"continuous_steps": 10}, r"panel \(a-velocity\) trains 5 steps per run \(its share "
+                               r"of 10, --continuous-steps\): total_timesteps must be an "
+                               r"integer")])
 def test_bad_continuous_settings_are_one_line(change, message):
     with pytest.raises(TPOError, match=f"^{message}"):
         check_settings(replace(Settings.quick(), **change))

@@ -596,7 +596,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "slack 0 and 100) with velocity or heading actions (--quick runs "
                         "one, with velocity actions unless this names heading)")
     p.add_argument("--continuous-steps", type=int,
-                   help="env steps per continuous run (default 2,000,000)")
+                   help="env steps per continuous run of a panel of full share (default "
+                        "2,000,000; (a), (d) and Figure 3 train half: docs/reproduce.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_reproduce)
 

@@ -192,10 +192,11 @@ def verdict_table(records: Records) -> str:
     return "\n".join(rows)
 
 
-def budget_text(settings: Settings) -> str:
-    """Each grid panel's steps per run, e.g. ``1,500,000 in (b), 1,000,000 in (a) (c)``."""
+def budget_text(settings: Settings, continuous: bool = False) -> str:
+    """Each grid (or continuous) panel's steps per run, e.g. ``1,500,000 in (b),
+    1,000,000 in (a) (c)``."""
     by_steps: dict[int, list[str]] = {}
-    for panel, _ in settings.panels():
+    for panel, _ in settings.continuous_panels() if continuous else settings.panels():
         by_steps.setdefault(settings.steps_of(panel), []).append(f"({panel.name})")
     if len(by_steps) == 1:
         return f"{next(iter(by_steps)):,}"
@@ -226,7 +227,7 @@ def report(settings: Settings, records: Records, continuous: dict[str, dict[str,
     if continuous:
         lines += [f"## The continuous robot, {settings.action} actions", "",
                   f"The same DAGs at slack {' and '.join(f'{x:g}' for x in CONTINUOUS_SLACKS)} "
-                  f"on the continuous env (`ContinuousNav`), {settings.continuous_steps:,} env "
+                  f"on the continuous env (`ContinuousNav`), {budget_text(settings, True)} env "
                   f"steps per run, in the {CONTINUOUS_FORM} form. Values are each learned "
                   "greedy policy's noise-free discounted return from the start (mean ± std "
                   "over seeds) beside the values of LAR's policy on the env's finite "

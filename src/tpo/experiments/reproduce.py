@@ -130,8 +130,8 @@ def check_settings(settings: Settings) -> None:
         try:
             Trainer(env, graph, config, steps)
         except ConfigError as err:
-            budget = ("--continuous-steps" if panel.action
-                      else f"its share of {settings.steps:,}")
+            budget = (f"its share of {settings.continuous_steps:,}, --continuous-steps"
+                      if panel.action else f"its share of {settings.steps:,}")
             raise ConfigError(f"panel ({panel.key}) trains {steps:,} steps per run "
                               f"({budget}): {err}") from None
 
