@@ -2,6 +2,7 @@
 
 import json
 from dataclasses import asdict, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, FileLink
 from tpo.experiments.paper import CONTINUOUS_PANELS, FIGURE3, FORMS, PANELS, Settings, direction
 from tpo.experiments.report import budget_text, merge_records, pick_runs, results_csv, verdict_table
-from tpo.experiments.reproduce import check_settings, learner, reproduce
+from tpo.experiments.reproduce import check_settings, learner, reproduce, saved_settings
 from tpo.experiments.sweep import run_sweep
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import solve_lar
@@ -60,13 +61,26 @@ def test_each_panel_trains_its_share_of_the_budget():
         "a": 1_000_000, "b": 2_000_000, "c": 2_000_000, "d": 1_000_000, "fig3": 1_000_000}
     assert budget_text(settings, continuous=True) == \
         "2,000,000 in (b) (c), 1,000,000 in (a) (d) (fig3)"
-    assert replace(Settings.quick(), continuous=("a", "b")).steps_of(cont[1][0]) == 600_000
+    assert Settings.quick().steps_of(cont[1][0]) == 600_000  # (b): the whole of --quick's
     assert [name for name, *_ in settings.jobs()][-5:] == [
         f"penalty-{n}-velocity" for n in ("a", "b", "c", "d", "fig3")]
     assert [p.key for p, _ in replace(settings, action="heading",
                                       continuous=("fig3",)).continuous_panels()] == [
         "fig3-heading"]
     assert [p.key for p, _ in Settings.quick().continuous_panels()] == ["a-velocity"]
+
+
+def test_a_reproduction_saved_before_the_continuous_shares_resumes_without_them(tmp_path):
+    # The committed run's settings, as written before the field: no continuous panels,
+    # so today's shares change nothing and it resumes; with continuous panels its units
+    # trained the whole --continuous-steps, and the missing field keeps it apart.
+    saved = json.loads((Path(__file__).parent.parent / "docs" / "reproduce"
+                        / "settings.json").read_text())
+    old = {k: v for k, v in saved.items() if k != "continuous_shares"}
+    (tmp_path / "settings.json").write_text(json.dumps(old))
+    assert saved_settings(tmp_path / "settings.json") == saved
+    (tmp_path / "settings.json").write_text(json.dumps({**old, "continuous": ["a"]}))
+    assert "continuous_shares" not in saved_settings(tmp_path / "settings.json")
 
 
 def test_units_train_every_run_once_cut_evenly_costliest_first():

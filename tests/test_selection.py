@@ -114,18 +114,34 @@ def test_a_leaf_that_lost_a_zero_slack_parent_s_best_does_not_hand_it_to_the_roo
     # monitor's best within the judge's tolerance: the monitor phase's policy.
     returns = jnp.array([[-32.4, 0.0, -16.3], [-100.0, 61.7, -16.3], [-100.0, 0.0, -16.3]])
     held, order = jnp.array([False, True, False]), [2, 0, 1]
+    edges = [(0, 1), (1, 2)]  # goal -> monitor, monitor -> avoid
     allowance = jnp.array([10000.0, 0.0])  # local slacks (100, 0) over 1 - gamma
     assert int(choose(returns, jnp.zeros(3), order, 10.0, held)) == 0
-    assert int(choose(returns, jnp.zeros(3), order, 10.0, held, edges=EDGES,
+    assert int(choose(returns, jnp.zeros(3), order, 10.0, held, edges=edges,
                       allowance=allowance)) == 1
     # A leaf within the tolerance of the monitor's best (2 %) keeps its own answer.
     kept = returns.at[2, 1].set(60.6)
-    assert int(choose(kept, jnp.zeros(3), order, 10.0, held, edges=EDGES,
+    assert int(choose(kept, jnp.zeros(3), order, 10.0, held, edges=edges,
                       allowance=allowance)) == 2
     # No admissible candidate keeps the edges (the monitor's best is a policy whose
     # penalty excludes it): the rule stands aside, and the answer is as without it.
     assert int(choose(returns, jnp.array([0.0, 30.0, 0.0]), order, 10.0, held,
-                      edges=EDGES, allowance=allowance)) == 0
+                      edges=edges, allowance=allowance)) == 0
+    with pytest.raises(ValueError, match="edges need their allowance"):
+        choose(returns, jnp.zeros(3), order, 10.0, held, edges=edges)
+
+
+def test_a_run_s_pick_holds_the_graph_s_edges_at_their_start_allowance():
+    # Trainer.pick passes the graph's edges and each slack's start value to choose:
+    # the same G>M>A (100, 0) candidates as above, on the grid (no training).
+    graph = ObjectiveGraph.parse("G>M>A", [100, 0], objectives=OBJECTIVES)
+    trainer = Trainer(GridNav(load_map("small")), graph, TPOConfig(num_envs=4, num_steps=16),
+                      3 * 64)
+    slack = trainer.slack_array()
+    assert trainer.edges == [(0, 1), (1, 2)]
+    np.testing.assert_allclose(trainer.allowance(slack), [10000.0, 0.0], rtol=1e-5)
+    returns = jnp.array([[-32.4, 0.0, -16.3], [-100.0, 61.7, -16.3], [-100.0, 0.0, -16.3]])
+    assert int(trainer.pick(slack, returns, jnp.zeros(3))) == 1
 
 
 @pytest.fixture(scope="module")

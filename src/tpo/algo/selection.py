@@ -9,9 +9,11 @@ roots keep nothing of each other, so there a phase after the leaf learns it:
 :class:`tpo.algo.phases.Problem`), so the
 run ends by choosing among the phases' final policies, judged by their greedy
 Monte Carlo returns: the tie rule, applied to the candidates the run already has.
-A population of independent learners (:class:`tpo.algo.TPO`'s ``population``)
-then answers with the member whose answer LAR's own rule prefers, judged on the
-same returns (:func:`choose_member`).
+The answer must also keep the leaf's ancestral edges by LAR's own rule on the
+candidates' returns (:func:`keepers`), where one of them does. A population of
+independent learners (:class:`tpo.algo.TPO`'s ``population``) then answers with
+the member whose answer that rule prefers, judged on the same returns
+(:func:`choose_member`).
 """
 
 from __future__ import annotations
@@ -53,6 +55,8 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     Returns tie as the judge's verdicts do: within 2 % of the reference's, or 0.5
     (:func:`tpo.tabular.judge.tolerance`).
     """
+    if edges and allowance is None:
+        raise ValueError("choose: edges need their allowance")
     n = returns.shape[0]
     ref = returns[reference]
     tolerance = _tolerance(ref)

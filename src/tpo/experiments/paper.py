@@ -68,12 +68,14 @@ FIGURE3_SLACKS = (0.0, 100.0)
 SHARES = {"a": 1 / 2, "b": 1.0, "c": 3 / 4, "d": 1 / 2, "fig3": 3 / 4}
 # The continuous robot's panels (tpo reproduce --continuous ACTION): each of Figure 2's
 # DAGs, and Figure 3, at slack 0 and 100 only, in the penalty form (the paper's, the
-# only one for a Gaussian policy); their budget is Settings.continuous_steps.
+# only one for a Gaussian policy); their budget is their share (CONTINUOUS_SHARES) of
+# Settings.continuous_steps.
 CONTINUOUS_PANELS = ("a", "b", "c", "d", "fig3")
 # Each continuous panel's share of Settings.continuous_steps (2 M), measured with
-# velocity actions (docs/notes/tpo-learning.md, session 32): (a), the fan (d) and
-# Figure 3's (100, 0) keep their verdicts on half (10/10, 10/10 at value level, 5/5);
-# (b) fell from 8/10 to 4/10 on half and (c) from 9/10 to 8/10.
+# velocity actions (docs/notes/tpo-learning.md, session 32): on half, (a) and Figure 3's
+# (100, 0) kept their verdicts (10/10, 5/5) and the fan (d) gave 10/10 at value level
+# (9/10 on the whole); (b) fell from 8/10 to 4/10 and (c) from 9/10 to 8/10. With
+# heading actions and these shares (a) gave 9/10.
 CONTINUOUS_SHARES = {"a": 1 / 2, "b": 1.0, "c": 1.0, "d": 1 / 2, "fig3": 1 / 2}
 CONTINUOUS_FORM = "penalty"
 CONTINUOUS_SLACKS = (0.0, 100.0)

@@ -227,10 +227,10 @@ def report(settings: Settings, records: Records, continuous: dict[str, dict[str,
     if continuous:
         lines += [f"## The continuous robot, {settings.action} actions", "",
                   f"The same DAGs at slack {' and '.join(f'{x:g}' for x in CONTINUOUS_SLACKS)} "
-                  f"on the continuous env (`ContinuousNav`), {budget_text(settings, True)} env "
-                  f"steps per run, in the {CONTINUOUS_FORM} form. Values are each learned "
-                  "greedy policy's noise-free discounted return from the start (mean ± std "
-                  "over seeds) beside the values of LAR's policy on the env's finite "
+                  f"on the continuous env (`ContinuousNav`); env steps per run: "
+                  f"{budget_text(settings, True)}; in the {CONTINUOUS_FORM} form. Values are "
+                  "each learned greedy policy's noise-free discounted return from the start "
+                  "(mean ± std over seeds) beside the values of LAR's policy on the env's finite "
                   "reference (`tpo solve --dynamics continuous`); LAR-correct and same "
                   "values within 5 %, strict: also the path's category (goal reached, "
                   "avoid region entered, monitor region at the end) is the reference "

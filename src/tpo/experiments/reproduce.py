@@ -40,6 +40,7 @@ from tpo.experiments.paper import (
     CONTINUOUS_FORM,
     CONTINUOUS_OBSERVATION,
     CONTINUOUS_PANELS,
+    CONTINUOUS_SHARES,
     FORM_CONFIGS,
     FORMS,
     GRID_OBSERVATION,
@@ -155,6 +156,16 @@ def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, link
 Progress = Callable[[dict[str, float]], None]
 
 
+def saved_settings(path: Path) -> dict[str, Any]:
+    """A reproduction's ``settings.json``; one written before the continuous panels'
+    shares (``continuous_shares``) and without continuous panels means today's
+    shares, which change nothing in it."""
+    theirs = json.loads(path.read_text())
+    if "continuous_shares" not in theirs and not theirs.get("continuous"):
+        theirs["continuous_shares"] = dict(CONTINUOUS_SHARES)
+    return theirs
+
+
 def reproduce(out: str | Path, settings: Settings | None = None,
               progress: Progress | None = None, backend: Backend | None = None
               ) -> Reproduction:
@@ -180,7 +191,7 @@ def reproduce(out: str | Path, settings: Settings | None = None,
             "observation": CONTINUOUS_OBSERVATION}
     mine = json.loads(json.dumps(mine))
     if settings_file.exists():
-        theirs = json.loads(settings_file.read_text())
+        theirs = saved_settings(settings_file)
         if theirs != mine:
             changed = sorted(k for k in {*theirs, *mine} if theirs.get(k) != mine.get(k))
             raise TPOError(f"{out} holds a reproduction with other settings (in "
