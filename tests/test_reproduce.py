@@ -15,7 +15,15 @@ from tpo.envs.continuous_model import continuous_model
 from tpo.envs.grid import GridNav
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, FileLink
-from tpo.experiments.paper import CONTINUOUS_PANELS, FIGURE3, FORMS, PANELS, Settings, direction
+from tpo.experiments.paper import (
+    CONTINUOUS_PANELS,
+    CONTINUOUS_SHARES,
+    FIGURE3,
+    FORMS,
+    PANELS,
+    Settings,
+    direction,
+)
 from tpo.experiments.report import budget_text, merge_records, pick_runs, results_csv, verdict_table
 from tpo.experiments.reproduce import check_settings, learner, reproduce, saved_settings
 from tpo.experiments.sweep import run_sweep
@@ -58,9 +66,9 @@ def test_each_panel_trains_its_share_of_the_budget():
     assert [(p.key, xs) for p, xs in cont] == [
         (f"{n}-velocity", [0.0, 100.0]) for n in ("a", "b", "c", "d", "fig3")]
     assert {p.name: settings.steps_of(p) for p, _ in cont} == {
-        "a": 1_000_000, "b": 2_000_000, "c": 2_000_000, "d": 1_000_000, "fig3": 1_000_000}
+        "a": 1_000_000, "b": 2_000_000, "c": 1_500_000, "d": 500_000, "fig3": 1_000_000}
     assert budget_text(settings, continuous=True) == \
-        "2,000,000 in (b) (c), 1,000,000 in (a) (d) (fig3)"
+        "2,000,000 in (b), 1,500,000 in (c), 1,000,000 in (a) (fig3), 500,000 in (d)"
     assert Settings.quick().steps_of(cont[1][0]) == 600_000  # (b): the whole of --quick's
     assert [name for name, *_ in settings.jobs()][-5:] == [
         f"penalty-{n}-velocity" for n in ("a", "b", "c", "d", "fig3")]
@@ -70,17 +78,24 @@ def test_each_panel_trains_its_share_of_the_budget():
     assert [p.key for p, _ in Settings.quick().continuous_panels()] == ["a-velocity"]
 
 
-def test_a_reproduction_saved_before_the_continuous_shares_resumes_without_them(tmp_path):
-    # The committed run's settings, as written before the field: no continuous panels,
-    # so today's shares change nothing and it resumes; with continuous panels its units
-    # trained the whole --continuous-steps, and the missing field keeps it apart.
+def test_a_reproduction_without_continuous_panels_resumes_whatever_its_continuous_shares(
+        tmp_path):
+    # The committed run's settings, as written before the field or with another
+    # version's shares: no continuous panels, so today's shares change nothing and it
+    # resumes; with continuous panels its units trained on its own shares (the whole
+    # --continuous-steps before the field), which keep it apart.
     saved = json.loads((Path(__file__).parent.parent / "docs" / "reproduce"
                         / "settings.json").read_text())
+    assert saved["continuous_shares"] == CONTINUOUS_SHARES
     old = {k: v for k, v in saved.items() if k != "continuous_shares"}
-    (tmp_path / "settings.json").write_text(json.dumps(old))
-    assert saved_settings(tmp_path / "settings.json") == saved
+    other = {**saved, "continuous_shares": {**CONTINUOUS_SHARES, "c": 1.0}}
+    for written in (old, other):
+        (tmp_path / "settings.json").write_text(json.dumps(written))
+        assert saved_settings(tmp_path / "settings.json") == saved
     (tmp_path / "settings.json").write_text(json.dumps({**old, "continuous": ["a"]}))
     assert "continuous_shares" not in saved_settings(tmp_path / "settings.json")
+    (tmp_path / "settings.json").write_text(json.dumps({**other, "continuous": ["a"]}))
+    assert saved_settings(tmp_path / "settings.json")["continuous_shares"]["c"] == 1.0
 
 
 def test_units_train_every_run_once_cut_evenly_costliest_first():

@@ -44,11 +44,12 @@ POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
 #: infeasible state's relaxation per state as LAR's, and the tie-break valued by the
 #: leaf's own critic, which finds the leaf's way to an ancestor's reward that the
 #: ancestor's own path reached through the leaf's forbidden region
-#: (docs/notes/tpo-learning.md, sessions 19 to 21), and a dead zone of half the
+#: (docs/notes/tpo-learning.md, sessions 19 to 21), and a dead zone of 0.4 of the
 #: parent's reward range on the telescoping penalty, so that the dips a stochastic
-#: root's critic has at doorways do not stop the phases under it (session 31)
+#: root's critic has at doorways do not stop the phases under it (session 31), narrower
+#: than one step onto the rug, which half the range let through free (session 33)
 CONTINUOUS_DEFAULTS = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
-                       "dead_zone": 0.5}
+                       "dead_zone": 0.4}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
@@ -161,9 +162,9 @@ class TPOConfig:
     pays (a doorway, where it bumps), which its optimum (to pay nothing) has not, then
     charge nothing; a parent that rewards progress keeps every step's cost, standing
     still's included. The price: a violation no larger than the zone charges nothing
-    either (at 0.5 a single bump of an exact avoid critic, -1); a step onto a forbidden
-    region charges by its depth in the critic, 6-8 on home's rug (docs/notes/tpo-learning.md,
-    session 31)"""
+    either, so it must stay below a cost's one-step reward (on avoid, range 2, a share
+    of 0.5 let a step onto the rug from its edge, where an accurate critic dips by 1,
+    through free; docs/notes/tpo-learning.md, sessions 31 and 33)"""
     beta_warmup: float = 0.0
     """penalty: share of every phase over which the multiplier rises linearly from 0
     to beta: a phase then explores before its constraints bind, which helps a child

@@ -72,11 +72,11 @@ SHARES = {"a": 1 / 2, "b": 1.0, "c": 3 / 4, "d": 1 / 2, "fig3": 3 / 4}
 # Settings.continuous_steps.
 CONTINUOUS_PANELS = ("a", "b", "c", "d", "fig3")
 # Each continuous panel's share of Settings.continuous_steps (2 M), measured with
-# velocity actions (docs/notes/tpo-learning.md, session 32): on half, (a) and Figure 3's
-# (100, 0) kept their verdicts (10/10, 5/5) and the fan (d) gave 10/10 at value level
-# (9/10 on the whole); (b) fell from 8/10 to 4/10 and (c) from 9/10 to 8/10. With
-# heading actions and these shares (a) gave 9/10.
-CONTINUOUS_SHARES = {"a": 1 / 2, "b": 1.0, "c": 1.0, "d": 1 / 2, "fig3": 1 / 2}
+# velocity actions (docs/notes/tpo-learning.md, sessions 32 and 33): (b) takes the whole
+# (8/10; on 7/8 it fell to 4/10), (c) three quarters (10/10, as on the whole; 8/10 on
+# half), (a) and Figure 3 half (10/10 and 5/5; on 3/8 8/10 and 3/5), the fan (d) a
+# quarter (10/10 at value level, as on half).
+CONTINUOUS_SHARES = {"a": 1 / 2, "b": 1.0, "c": 3 / 4, "d": 1 / 4, "fig3": 1 / 2}
 CONTINUOUS_FORM = "penalty"
 CONTINUOUS_SLACKS = (0.0, 100.0)
 CONTINUOUS_OBSERVATION = "factored"  # ContinuousNav's observation (a reproduction's setting)

@@ -157,11 +157,11 @@ Progress = Callable[[dict[str, float]], None]
 
 
 def saved_settings(path: Path) -> dict[str, Any]:
-    """A reproduction's ``settings.json``; one written before the continuous panels'
-    shares (``continuous_shares``) and without continuous panels means today's
-    shares, which change nothing in it."""
+    """A reproduction's ``settings.json``; one without continuous panels means today's
+    continuous shares (``continuous_shares``: another version's, or none, written
+    before the field), which change nothing in it."""
     theirs = json.loads(path.read_text())
-    if "continuous_shares" not in theirs and not theirs.get("continuous"):
+    if not theirs.get("continuous"):
         theirs["continuous_shares"] = dict(CONTINUOUS_SHARES)
     return theirs
 
