@@ -597,8 +597,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "one, with velocity actions unless this names heading)")
     p.add_argument("--continuous-steps", type=int,
                    help="env steps per continuous run of a panel of full share (default "
-                        "2,000,000; (c) trains three quarters, (a) and Figure 3 half, (d) a "
-                        "quarter: docs/reproduce.md)")
+                        "2,000,000; each panel trains its share: docs/reproduce.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_reproduce)
 
