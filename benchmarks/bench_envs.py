@@ -77,10 +77,10 @@ def main() -> None:
                     args.repeats)
         measure("GridNav slip 0.1", GridNav(navmap, slip=0.1, observation="factored"), n,
                 args.steps, args.repeats)
-        measure("ContinuousNav velocity", ContinuousNav(navmap), n, args.steps // 10,
-                args.repeats, continuous_actions=True)
+        measure("ContinuousNav velocity", ContinuousNav(navmap), n, args.steps, args.repeats,
+                continuous_actions=True)
         measure("ContinuousNav heading", ContinuousNav(navmap, action="heading"), n,
-                args.steps // 10, args.repeats)
+                args.steps, args.repeats)
 
 
 if __name__ == "__main__":
