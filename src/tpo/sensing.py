@@ -37,9 +37,9 @@ def blocked(points: Any, padded: Any, xp: Any = np) -> Any:
 
 
 def range_readings(pos: Any, padded: Any, beams: Any, ray_t: Any, xp: Any = np) -> Any:
-    """A range sensor at ``pos [2]`` (on the map) of :func:`pad_walls` ``padded``: along each
-    beam ``[K, 2]`` the distance to the first blocked point sampled at ``ray_t [M]``
-    (less half a step), or ``ray_t[-1]``: ``[K]``.
+    """A range sensor at ``pos [2]``, a point on the map whose :func:`pad_walls` is
+    ``padded``: along each beam ``[K, 2]`` the distance to the first blocked point
+    sampled at ``ray_t [M]`` (less half a step), or ``ray_t[-1]``: ``[K]``.
 
     :func:`blocked` clips every point onto the border; here only the flat index is
     clipped, which is exact: samples are less than a cell apart, so every one up to
