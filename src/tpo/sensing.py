@@ -32,8 +32,14 @@ def blocked(points: Any, padded: Any, xp: Any = np) -> Any:
     the map is clipped onto the border, a wall)."""
     hp, wp = padded.shape
     cell = xp.clip(xp.floor(points) + 1, 0, xp.array([hp - 1, wp - 1], xp.float32))
-    cell = cell.astype(xp.int32)
-    return padded.reshape(-1)[cell[..., 0] * wp + cell[..., 1]]
+    return _read(padded, cell.astype(xp.int32), xp)
+
+
+def _read(padded: Any, cell: Any, xp: Any) -> Any:
+    """``padded`` at the integer cells ``[..., 2]`` in one flat gather (the flat
+    index clipped onto the table)."""
+    return xp.take(padded.reshape(-1), cell[..., 0] * padded.shape[1] + cell[..., 1],
+                   mode="clip")
 
 
 def range_readings(pos: Any, padded: Any, beams: Any, ray_t: Any, xp: Any = np) -> Any:
@@ -48,9 +54,7 @@ def range_readings(pos: Any, padded: Any, beams: Any, ray_t: Any, xp: Any = np) 
     time of clipping each point and taking the first hit by ``argmax``:
     docs/notes/tpo-learning.md, session 34)."""
     points = pos + beams[:, None, :] * ray_t[None, :, None]  # [K, M, 2]
-    cell = xp.floor(points).astype(xp.int32) + 1
-    flat = cell[..., 0] * padded.shape[1] + cell[..., 1]
-    hit = xp.take(padded.reshape(-1), flat, mode="clip")
+    hit = _read(padded, xp.floor(points).astype(xp.int32) + 1, xp)
     return xp.min(xp.where(hit, ray_t - RAY_STEP / 2, ray_t[-1]), axis=1)
 
 
