@@ -101,33 +101,44 @@ def test_a_reproduction_without_continuous_panels_resumes_whatever_its_continuou
 def test_units_train_every_run_once_cut_evenly_costliest_first():
     settings = Settings()
     units = settings.units()
-    cost = [len(xs) * settings.steps_of(p) for *_, p, xs in units]
+    cost = [len(runs) * settings.steps_of(runs[0][0]) for *_, runs in units]
     assert cost == sorted(cost, reverse=True)
     assert [u[0] for u in units[:2]] == ["penalty-b.1", "penalty-b.2"]
     assert {name for name, *_ in units} == {
         *(f"penalty-{p}.{i}" for p in "abcd" for i in (1, 2)), "penalty-fig3"}
     # Figure 3 trains longer than panel (a): its slack (0, 0) is its own run.
-    assert [xs for name, *_, xs in units if name == "penalty-fig3"] == [[0.0, 100.0]]
+    assert [[x for _, x in runs] for name, *_, runs in units if name == "penalty-fig3"] == [
+        [0.0, 100.0]]
     sources = settings.sources()
     assert sources["penalty-fig3"] == [("penalty-fig3", [0, 1], True)]
     assert sources["penalty-b"] == [("penalty-b.1", [0, 1, 2, 3], True),
                                     ("penalty-b.2", [0, 1, 2, 3], True)]
     for job, form, panel, xs in settings.jobs():  # every run of a job, in order, is trained
-        found = {name: xs for name, *_, xs in units}
-        assert [found[u][i] for u, ids, _ in sources[job] for i in ids] == xs
+        found = {name: runs for name, *_, runs in units}
+        assert [found[u][i] for u, ids, _ in sources[job] for i in ids] == [(panel, x) for x in xs]
         assert {settings.run(form, panel, x) for x in xs} <= {
-            settings.run(f, p, x) for _, f, p, part in units for x in part}
+            settings.run(f, p, x) for _, f, runs in units for p, x in runs}
     # Two workers taking units in this order end within half a unit of each other.
     loads = [0.0, 0.0]
     for c in cost:
         loads[loads.index(min(loads))] += c
     assert max(loads) - min(loads) <= max(cost) / 2
     # The same budget for (a) and Figure 3: Figure 3's slack (0, 0) is panel (a)'s first
-    # run, trained once, by (a)'s unit.
+    # run, trained once, by (a)'s unit, and its (100, 0) trains in (a)'s program, after
+    # (a)'s eight.
     shared = replace(settings, shares={**settings.shares, "fig3": settings.shares["a"]})
-    assert [xs for name, *_, xs in shared.units() if name == "penalty-fig3"] == [[100.0]]
+    assert "penalty-fig3" not in {name for name, *_ in shared.units()}
+    assert [[(p.name, x) for p, x in runs] for name, _, runs in shared.units()
+            if name == "penalty-a.3"] == [[("fig3", 100.0)]]
     assert shared.sources()["penalty-fig3"] == [("penalty-a.1", [0], False),
-                                                ("penalty-fig3", [0], True)]
+                                                ("penalty-a.3", [0], False)]
+    # So with the continuous robot's panels: Figure 3's (100, 0) beside panel (a)'s.
+    robot = replace(settings, continuous=CONTINUOUS_PANELS)
+    assert [[(p.key, x) for p, x in runs] for name, _, runs in robot.units()
+            if name == "penalty-a-velocity"] == [
+        [("a-velocity", 0.0), ("a-velocity", 100.0), ("fig3-velocity", 100.0)]]
+    assert robot.sources()["penalty-fig3-velocity"] == [("penalty-a-velocity", [0, 2], False)]
+    assert len(robot.units()) == len(units) + 4
 
 
 def test_a_panels_record_is_its_runs_along_the_slack_axis_wherever_they_trained():
@@ -240,7 +251,7 @@ def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path):
         def run(self, units, tracker, done, folder):
             for u in units:
                 queued.append(u.name)
-                done(u.name, {"x": u.args[2], "unit": u.name})
+                done(u.name, {"x": [x for _, x in u.args[1]], "unit": u.name})
 
     (out / "panels").mkdir(parents=True)
     (out / "panels" / "restriction-b.json").write_text(json.dumps({"x": [0, 100],
@@ -249,7 +260,7 @@ def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path):
         mp.setattr("tpo.experiments.reproduce.write_outputs", lambda *a: None)
         result = reproduce(out, settings, seen.append, Fake())
     assert sorted(queued) == sorted(
-        [f"{f}-{p}" for f in FORMS for p in ("a", "b", "c", "d", "fig3")
+        [f"{f}-{p}" for f in FORMS for p in ("a", "b", "c", "d")
          if (f, p) != ("restriction", "b")] + ["penalty-a-velocity"])
     assert queued == [name for name, *_ in settings.units() if name != "restriction-b"]
     assert seen[0] == {name: float(name == "restriction-b") for name, *_ in settings.units()}
@@ -258,13 +269,37 @@ def test_a_half_finished_reproduction_runs_only_what_is_missing(tmp_path):
     assert result.records["restriction"]["b"] == {"form": "restriction",
                                                   "panel": asdict(PANELS[1]),
                                                   "x": [0, 100], "mine": True}
-    # Figure 3's slack 0 is panel (a)'s run: its record takes it from (a)'s unit.
+    # Figure 3's slack 0 is panel (a)'s run, and its (100, 0) trains in (a)'s program:
+    # its record takes both from (a)'s unit.
     assert result.records["penalty"]["fig3"] == {"form": "penalty", "panel": asdict(FIGURE3),
                                                  "x": [0.0, 100.0], "unit": "penalty-a"}
     assert result.continuous["a-velocity"]["x"] == [0.0, 100.0]
     assert result.continuous["a-velocity"]["panel"]["action"] == "velocity"
-    assert json.loads((out / "panels" / "penalty-fig3.json").read_text()) == {
-        "x": [100.0], "unit": "penalty-fig3"}  # written by the driver as the unit finished
+    assert json.loads((out / "panels" / "penalty-a.json").read_text()) == {
+        "x": [0.0, 100.0, 100.0], "unit": "penalty-a"}  # written by the driver as it finished
+
+
+def test_a_unit_record_of_other_runs_is_refused_before_anything_trains(tmp_path):
+    """A finished unit's record holding other runs than today's unit of that name (a
+    version of tpo that cut the units otherwise) is refused, and kept."""
+    settings = replace(Settings.quick(), continuous=("a", "fig3"))
+    assert [[(p.key, x) for p, x in runs] for name, _, runs in settings.units()
+            if name == "penalty-a-velocity"] == [
+        [("a-velocity", 0.0), ("a-velocity", 100.0), ("fig3-velocity", 100.0)]]
+    out = tmp_path / "repro"
+    (out / "panels").mkdir(parents=True)
+    old = json.dumps({"x": [0.0, 100.0], "slacks": [[0.0, 0.0], [100.0, 100.0]]})
+    (out / "panels" / "penalty-a-velocity.json").write_text(old)
+
+    class Refused(Backend):
+        def run(self, units, tracker, done, folder):
+            raise AssertionError("nothing trains")
+
+    with pytest.raises(TPOError, match=r"penalty-a-velocity.json holds other runs than this "
+                       r"unit's \(slacks \[\[0.0, 0.0\], \[100.0, 100.0\]\], not "
+                       r"\[\[0.0, 0.0\], \[100.0, 100.0\], \[100.0, 0.0\]\]\)"):
+        reproduce(out, settings, backend=Refused())
+    assert (out / "panels" / "penalty-a-velocity.json").read_text() == old
 
 
 class Interrupt(Exception):

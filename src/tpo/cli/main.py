@@ -405,8 +405,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     check_settings(settings)  # before the progress bar and before anything is made
     engine = backend_of(args)
     with exclusive(args.out, create=True) as out:
-        weights = {name: len(xs) * len(settings.seeds) * settings.steps_of(panel)
-                   for name, _, panel, xs in settings.units()}
+        weights = {name: len(runs) * len(settings.seeds) * settings.steps_of(runs[0][0])
+                   for name, _, runs in settings.units()}
         bar = tqdm(total=sum(weights.values()), unit="step", unit_scale=True,
                    disable=args.quiet, desc="reproduce")
         t0 = time.monotonic()

@@ -166,7 +166,7 @@ def run_units(units: Sequence[Unit], backend: Backend, folder: Path,
     unless the backend keeps it elsewhere). ``progress(tracker)`` at the start and
     whenever a unit advances."""
     folder.mkdir(parents=True, exist_ok=True)
-    records = {u.name: _read(folder / f"{u.name}.json") for u in units
+    records = {u.name: read_record(folder / f"{u.name}.json") for u in units
                if (folder / f"{u.name}.json").exists()}
     tracker = Tracker({u.name: float(u.name in records) for u in units}, on_change=progress)
     if progress is not None:
@@ -184,7 +184,8 @@ def run_units(units: Sequence[Unit], backend: Backend, folder: Path,
     return {u.name: records[u.name] for u in units}
 
 
-def _read(path: Path) -> dict[str, Any]:
+def read_record(path: Path) -> dict[str, Any]:
+    """The record a unit wrote to ``path`` (a clear error if it is not one)."""
     try:
         record = json.loads(path.read_text())
     except (UnicodeDecodeError, ValueError) as err:

@@ -139,33 +139,41 @@ class Settings:
                 *[(f"{CONTINUOUS_FORM}-{p.key}", CONTINUOUS_FORM, p, xs)
                   for p, xs in self.continuous_panels()]]
 
-    def units(self) -> list[tuple[str, str, Panel, list[float]]]:
-        """The units of work ``(unit, form, panel, xs)``: every job's runs that no
-        earlier job trains (:meth:`run`: Figure 3's slack (0, 0) is panel (a)'s first
-        when their budgets agree), cut into units of at most :data:`UNIT_SLACKS` slack
-        values, the costliest (runs x steps) first so that workers finish together. A
-        job trained by one unit gives it its name, else ``JOB.1``, ``JOB.2``, ... in
-        the order of their slacks (kept: the sort is stable, and only a job's last unit
-        is smaller)."""
-        return [(unit, form, panel, xs) for unit, _, form, panel, xs in self._cut()]
+    def units(self) -> list[tuple[str, str, list[tuple[Panel, float]]]]:
+        """The units of work ``(unit, form, runs)``, each run a ``(panel, x)``: every
+        job's runs that no earlier job trains (:meth:`run`: Figure 3's slack (0, 0) is
+        panel (a)'s first when their budgets agree), those of one :meth:`program`
+        together (the continuous Figure 3's (100, 0) trains beside panel (a)'s runs),
+        cut into units of at most :data:`UNIT_SLACKS` slack values, the costliest (runs
+        x steps) first so that workers finish together. A program trained by one unit
+        gives it the name of its first job, else ``JOB.1``, ``JOB.2``, ... in the order
+        of their runs (kept: the sort is stable, and only a program's last unit is
+        smaller)."""
+        return [(unit, form, runs) for unit, _, form, runs in self._cut()]
 
-    def _cut(self) -> list[tuple[str, str, str, Panel, list[float]]]:
-        """:meth:`units` with the job each unit belongs to, second."""
-        units, seen = [], set()
+    def _cut(self) -> list[tuple[str, str, str, list[tuple[Panel, float]]]]:
+        """:meth:`units` with the job each unit belongs to (its first run's), second."""
+        programs: dict[tuple, list[tuple[str, Panel, float]]] = {}
+        seen = set()
         for job, form, panel, xs in self.jobs():
-            own = [x for x in xs if self.run(form, panel, x) not in seen]
-            seen.update(self.run(form, panel, x) for x in own)
-            parts = [own[i:i + UNIT_SLACKS] for i in range(0, len(own), UNIT_SLACKS)]
-            units += [(job if len(parts) == 1 else f"{job}.{i + 1}", job, form, panel, part)
-                      for i, part in enumerate(parts)]
-        return sorted(units, key=lambda u: -len(u[4]) * self.steps_of(u[3]))
+            for x in xs:
+                if self.run(form, panel, x) not in seen:
+                    seen.add(self.run(form, panel, x))
+                    programs.setdefault(self.program(form, panel), []).append((job, panel, x))
+        units = []
+        for (form, *_), runs in programs.items():
+            parts = [runs[i:i + UNIT_SLACKS] for i in range(0, len(runs), UNIT_SLACKS)]
+            job = runs[0][0]
+            units += [(job if len(parts) == 1 else f"{job}.{i + 1}", job, form,
+                       [(panel, x) for _, panel, x in part]) for i, part in enumerate(parts)]
+        return sorted(units, key=lambda u: -len(u[3]) * self.steps_of(u[3][0][0]))
 
     def sources(self) -> dict[str, list[tuple[str, list[int], bool]]]:
         """Where every job's runs are trained, in its slacks' order: ``(unit, indices
-        of that unit's slack values, whether the unit is the job's own)``."""
+        of that unit's runs, whether the unit is the job's own)``."""
         trained = {self.run(form, panel, x): (unit, i, owner)
-                   for unit, owner, form, panel, xs in self._cut()
-                   for i, x in enumerate(xs)}
+                   for unit, owner, form, runs in self._cut()
+                   for i, (panel, x) in enumerate(runs)}
         out: dict[str, list[tuple[str, list[int], bool]]] = {}
         for job, form, panel, xs in self.jobs():
             parts = out.setdefault(job, [])
@@ -177,12 +185,21 @@ class Settings:
                     parts.append((unit, [i], owner == job))
         return out
 
+    def program(self, form: str, panel: Panel) -> tuple:
+        """What lets runs of ``panel`` train in one compiled program with another's:
+        their form, DAG, action kind and budget."""
+        return form, panel.dag, panel.action, self.steps_of(panel)
+
     def run(self, form: str, panel: Panel, x: float) -> tuple:
-        """What makes a run of ``panel`` at ``x`` the same as another's: its form, DAG,
-        action kind, every edge's slack and its budget."""
+        """What makes a run of ``panel`` at ``x`` the same as another's: its
+        :meth:`program` and every edge's slack."""
         n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0).edges)
-        return (form, panel.dag, panel.action, tuple(panel.slack(x, n_edges)),
-                self.steps_of(panel))
+        return *self.program(form, panel), tuple(panel.slack(x, n_edges))
+
+
+def run_slacks(runs: list[tuple[Panel, float]]) -> list[list[float]]:
+    """Every edge's slack in each run ``(panel, x)``."""
+    return [panel.slack(x, len(ObjectiveGraph.parse(panel.dag, 0.0).edges)) for panel, x in runs]
 
 
 def direction(start: float, end: float, scale: float) -> str:

@@ -32,10 +32,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from tpo.atomic import write_atomic
-from tpo.envs import OBJECTIVES, load_map
+from tpo.envs import load_map
 from tpo.errors import TPOError
-from tpo.experiments.engine import Backend, Link, LocalBackend, Unit, run_units
+from tpo.experiments.engine import Backend, Link, LocalBackend, Unit, read_record, run_units
 from tpo.experiments.paper import (
     CONTINUOUS_FORM,
     CONTINUOUS_OBSERVATION,
@@ -46,6 +48,7 @@ from tpo.experiments.paper import (
     GRID_OBSERVATION,
     Panel,
     Settings,
+    run_slacks,
 )
 from tpo.experiments.report import (
     Records,
@@ -81,18 +84,18 @@ class Reproduction:
                 f"figures, tables and report in {self.out} ({seconds:.0f} s of panel time)")
 
 
-def panel_problem(form: str, panel: Panel, xs: list[float], settings: Settings
-                  ) -> tuple[GridNav | ContinuousNav, TPOConfig, list[list[float]]]:
-    """The training env, the config and every run's slacks of one panel in ``form``."""
+def unit_problem(form: str, runs: list[tuple[Panel, float]], settings: Settings
+                 ) -> tuple[GridNav | ContinuousNav, TPOConfig, list[list[float]]]:
+    """The training env, the config and every run's slacks of ``runs`` ``(panel, x)``
+    of one program (:meth:`Settings.program`) in ``form``."""
     from tpo.envs import ContinuousNav, GridNav
-    from tpo.graph import ObjectiveGraph
 
     navmap = load_map(settings.map)
-    env = (ContinuousNav(navmap, action=panel.action, observation=CONTINUOUS_OBSERVATION,
-                         random_start=True) if panel.action
+    action = runs[0][0].action
+    env = (ContinuousNav(navmap, action=action, observation=CONTINUOUS_OBSERVATION,
+                         random_start=True) if action
            else GridNav(navmap, observation=GRID_OBSERVATION, random_start=True))
-    n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0, objectives=OBJECTIVES).edges)
-    return env, learner(form, settings, panel.action), [panel.slack(x, n_edges) for x in xs]
+    return env, learner(form, settings, action), run_slacks(runs)
 
 
 def learner(form: str, settings: Settings, action: str = "") -> TPOConfig:
@@ -125,7 +128,7 @@ def check_settings(settings: Settings) -> None:
         raise TPOError(f"action must be one of {', '.join(ACTION_KINDS)}, "
                        f"got {settings.action!r}")
     for _, form, panel, xs in settings.jobs():
-        env, config, slacks = panel_problem(form, panel, xs, settings)
+        env, config, slacks = unit_problem(form, [(panel, x) for x in xs], settings)
         graph = ObjectiveGraph.parse(panel.dag, slacks[0], objectives=env.objectives)
         steps = settings.steps_of(panel)
         try:
@@ -137,20 +140,35 @@ def check_settings(settings: Settings) -> None:
                               f"({budget}): {err}") from None
 
 
-def run_panel(form: str, panel: Panel, xs: list[float], settings: Settings, link: Link
-              ) -> dict[str, Any]:
-    """Train and evaluate the runs of ``panel`` at ``xs`` in ``form`` (a unit of work,
-    in a worker): their record."""
+def run_unit(form: str, runs: list[tuple[Panel, float]], settings: Settings, link: Link
+             ) -> dict[str, Any]:
+    """Train and evaluate ``runs`` ``(panel, x)`` of one program in ``form`` (a unit of
+    work, in a worker; :meth:`Settings.units`): their record."""
     from tpo.experiments.sweep import run_sweep
 
-    env, config, slacks = panel_problem(form, panel, xs, settings)
+    panel = runs[0][0]
+    env, config, slacks = unit_problem(form, runs, settings)
     t0 = time.monotonic()
     result = run_sweep(env, panel.dag, slacks, settings.seeds, config, settings.steps_of(panel),
                        progress=lambda done, total: link.progress(done / total),
                        checkpoint=link)
     paths = [[path.tolist() for path in row] for row in result.paths]
-    return {"x": xs, **result.record(), "paths": paths, "seconds": time.monotonic() - t0,
-            "runs": len(slacks) * len(settings.seeds)}
+    return {"x": [x for _, x in runs], **result.record(), "paths": paths,
+            "seconds": time.monotonic() - t0, "runs": len(slacks) * len(settings.seeds)}
+
+
+def check_record(path: Path, runs: list[tuple[Panel, float]]) -> None:
+    """Refuse a finished unit's record at ``path`` that holds other runs than ``runs``
+    (a version of tpo that cut the units otherwise wrote it), before anything trains."""
+    if not path.exists():
+        return
+    record = read_record(path)
+    mine = {"x": [x for _, x in runs], "slacks": np.float32(run_slacks(runs)).tolist()}
+    if any(k in record and record[k] != v for k, v in mine.items()) or "x" not in record:
+        raise TPOError(f"{path} holds other runs than this unit's (slacks "
+                       f"{record.get('slacks', record.get('x'))}, not {mine['slacks']}): "
+                       "another version of tpo cut the units otherwise; move it away to "
+                       "train the unit again")
 
 
 Progress = Callable[[dict[str, float]], None]
@@ -198,8 +216,10 @@ def reproduce(out: str | Path, settings: Settings | None = None,
                            f"{', '.join(changed)}: see its settings.json); choose another --out")
     else:
         write_atomic(settings_file, json.dumps(mine))
-    found = run_units([Unit(name, run_panel, (form, panel, xs, settings))
-                       for name, form, panel, xs in settings.units()],
+    units = settings.units()
+    for name, _, runs in units:
+        check_record(out / "panels" / f"{name}.json", runs)
+    found = run_units([Unit(name, run_unit, (form, runs, settings)) for name, form, runs in units],
                       backend or LocalBackend(), out / "panels",
                       None if progress is None else lambda t: progress(dict(t.fractions)))
     sources = settings.sources()
