@@ -314,7 +314,7 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
     assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
     continuous = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
-                  "dead_zone": 0.4, "num_steps": 64}
+                  "dead_zone": 0.4}
     robot = TPOConfig(action_bins=5, **continuous)
     assert RunSpec.from_settings({"dynamics": "continuous"}).config == robot
     assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \

@@ -47,11 +47,9 @@ POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
 #: (docs/notes/tpo-learning.md, sessions 19 to 21), and a dead zone of 0.4 of the
 #: parent's reward range on the telescoping penalty, so that the dips a stochastic
 #: root's critic has at doorways do not stop the phases under it (session 31), narrower
-#: than one step onto the rug, which half the range let through free (session 33), and
-#: rollouts of 64 steps: twice the updates on the same samples, which found the study
-#: and the hallway on two thirds of the steps (session 35)
+#: than one step onto the rug, which half the range let through free (session 33)
 CONTINUOUS_DEFAULTS = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
-                       "dead_zone": 0.4, "num_steps": 64}
+                       "dead_zone": 0.4}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
