@@ -157,7 +157,7 @@ def test_a_panels_record_is_its_runs_along_the_slack_axis_wherever_they_trained(
 
 
 def test_panels_sweep_the_edges_the_paper_names():
-    slack = {p.name: p.slack(7.0, 2) for p in PANELS}
+    slack = {p.name: p.slack(7.0) for p in PANELS}
     assert slack == {"a": [7.0, 7.0], "b": [0.0, 7.0], "c": [7.0, 0.0], "d": [7.0, 7.0]}
     assert [p.dag for p in PANELS] == ["M>A>G", "A>M>G", "G>M>A", "A>G, M>G"]
 

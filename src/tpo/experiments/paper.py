@@ -28,8 +28,10 @@ class Panel:
         continuous robot with velocity actions."""
         return f"{self.name}-{self.action}" if self.action else self.name
 
-    def slack(self, x: float, n_edges: int) -> list[float]:
-        return [float(x) if e in self.swept else 0.0 for e in range(n_edges)]
+    def slack(self, x: float) -> list[float]:
+        """Every edge's slack at ``x``."""
+        edges = ObjectiveGraph.parse(self.dag, 0.0).edges
+        return [float(x) if e in self.swept else 0.0 for e in range(len(edges))]
 
 
 PANELS = (Panel("a", "M>A>G", (0, 1), r"$\eta_1 = \eta_2$"),
@@ -157,8 +159,9 @@ class Settings:
         seen = set()
         for job, form, panel, xs in self.jobs():
             for x in xs:
-                if self.run(form, panel, x) not in seen:
-                    seen.add(self.run(form, panel, x))
+                run = self.run(form, panel, x)
+                if run not in seen:
+                    seen.add(run)
                     programs.setdefault(self.program(form, panel), []).append((job, panel, x))
         units = []
         for (form, *_), runs in programs.items():
@@ -193,13 +196,7 @@ class Settings:
     def run(self, form: str, panel: Panel, x: float) -> tuple:
         """What makes a run of ``panel`` at ``x`` the same as another's: its
         :meth:`program` and every edge's slack."""
-        n_edges = len(ObjectiveGraph.parse(panel.dag, 0.0).edges)
-        return *self.program(form, panel), tuple(panel.slack(x, n_edges))
-
-
-def run_slacks(runs: list[tuple[Panel, float]]) -> list[list[float]]:
-    """Every edge's slack in each run ``(panel, x)``."""
-    return [panel.slack(x, len(ObjectiveGraph.parse(panel.dag, 0.0).edges)) for panel, x in runs]
+        return *self.program(form, panel), tuple(panel.slack(x))
 
 
 def direction(start: float, end: float, scale: float) -> str:

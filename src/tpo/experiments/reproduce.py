@@ -48,7 +48,6 @@ from tpo.experiments.paper import (
     GRID_OBSERVATION,
     Panel,
     Settings,
-    run_slacks,
 )
 from tpo.experiments.report import (
     Records,
@@ -95,7 +94,7 @@ def unit_problem(form: str, runs: list[tuple[Panel, float]], settings: Settings
     env = (ContinuousNav(navmap, action=action, observation=CONTINUOUS_OBSERVATION,
                          random_start=True) if action
            else GridNav(navmap, observation=GRID_OBSERVATION, random_start=True))
-    return env, learner(form, settings, action), run_slacks(runs)
+    return env, learner(form, settings, action), [p.slack(x) for p, x in runs]
 
 
 def learner(form: str, settings: Settings, action: str = "") -> TPOConfig:
@@ -163,7 +162,7 @@ def check_record(path: Path, runs: list[tuple[Panel, float]]) -> None:
     if not path.exists():
         return
     record = read_record(path)
-    mine = {"x": [x for _, x in runs], "slacks": np.float32(run_slacks(runs)).tolist()}
+    mine = {"x": [x for _, x in runs], "slacks": np.float32([p.slack(x) for p, x in runs]).tolist()}
     if any(k in record and record[k] != v for k, v in mine.items()) or "x" not in record:
         raise TPOError(f"{path} holds other runs than this unit's (slacks "
                        f"{record.get('slacks', record.get('x'))}, not {mine['slacks']}): "
