@@ -464,11 +464,11 @@ def test_softened_warm_start_keeps_greedy_actions_and_raises_entropy(small):
 
 
 def test_one_critic_head_equals_its_column_of_all_heads():
-    from tpo.algo.networks import Critics
+    from tpo.algo.networks import Critics, orthogonalize
 
     critics = Critics((16, 16), 3, n_out=2)
     obs = jax.random.normal(jax.random.key(1), (5, 7))
-    params = critics.init(jax.random.key(0), obs)["params"]
+    params = orthogonalize(critics.init(jax.random.key(0), obs)["params"], critics.out_gain)
     every = critics.apply({"params": params}, obs)
     assert every.shape == (5, 3, 2)
     # Outputs of unit scale from float32 sums of 16 products: the batched and the single
@@ -530,26 +530,65 @@ def test_one_hot_blocks_change_no_number_of_the_networks(observation):
                                atol=1e-6)
 
 
-@pytest.mark.parametrize("shape", [(7, 16), (16, 16), (16, 3), (2, 3, 4), (3, 2)])
+@pytest.mark.parametrize("shape", [(7, 16), (16, 16), (16, 3), (3, 2)])
 def test_the_orthogonal_initialiser_is_jax_s_bit_for_bit(shape):
-    from tpo.algo.networks import orthogonal
+    """A kernel's Gaussian draw (in a compiled program) made orthogonal on the host is
+    jax.nn.initializers.orthogonal's kernel of the same key, alone and stacked (as
+    the critics' heads)."""
+    from tpo.algo.networks import gaussian_draw, orthogonal
 
     key = jax.random.key(3)
-    ours = jax.jit(orthogonal(0.5), static_argnums=1)(key, shape)
+    ours = orthogonal(jax.jit(gaussian_draw, static_argnums=1)(key, shape), 0.5)
     np.testing.assert_array_equal(ours, jax.nn.initializers.orthogonal(0.5)(key, shape))
-    keys = jax.random.split(key, 4)  # batched, as the critics' heads and stacked seeds
+    keys = jax.random.split(key, 4)
     np.testing.assert_array_equal(
-        jax.vmap(orthogonal(2.0), in_axes=(0, None))(keys, shape),
+        orthogonal(jax.vmap(gaussian_draw, in_axes=(0, None))(keys, shape), 2.0),
         jax.vmap(jax.nn.initializers.orthogonal(2.0), in_axes=(0, None))(keys, shape))
 
 
-def test_initialisation_runs_no_qr_kernel_on_xla_s_threads(small):
-    """jaxlib's QR kernel waits for helpers on XLA's pool: two at once on two threads
-    deadlock (docs/design.md §5). Its custom call names the LAPACK routine."""
+def test_initialisation_runs_no_qr_and_no_callback_in_an_xla_program(small):
+    """jaxlib's QR kernel waits for helpers on XLA's pool (two at once on two threads
+    deadlock), and a Python callback's argument waits for XLA's threads too (on one
+    CPU it hung): the program that draws the parameters holds neither
+    (docs/design.md §5). The custom call names the LAPACK routine."""
+    from tpo.algo.networks import draw_params
+
     graph = ObjectiveGraph.parse("M>A>G", 0, objectives=OBJECTIVES)
     trainer = Trainer(small[0], graph, TPOConfig(num_envs=4, num_steps=32), 3 * 4 * 32)
-    hlo = Trainer.init_params.lower(trainer, jax.random.key(0)).as_text()
-    assert "geqrf" not in hlo and "callback" in hlo
+    hlo = draw_params.lower(jax.random.key(0), trainer.actor, trainer.critics,
+                            small[0].obs_shape).as_text()
+    assert "geqrf" not in hlo and "callback" not in hlo
+
+
+ONE_CPU_INITS = """
+import jax
+from tpo.algo import TPOConfig, Trainer
+from tpo.envs import GridNav, load_map
+from tpo.graph import ObjectiveGraph
+env = GridNav(load_map("home"))
+trainer = Trainer(env, ObjectiveGraph.parse("M>A>G", [0, 0], objectives=env.objectives),
+                  TPOConfig(), 10**6)
+for i in range(60):  # five seeds at a time, as a sweep starts
+    jax.block_until_ready([trainer.init(jax.random.key(5 * i + s)) for s in range(5)])
+print("done")
+"""
+
+
+def test_a_process_on_one_cpu_initialises_runs_without_hanging():
+    """Pinned to one CPU, a process that starts runs five at a time (as
+    :func:`run_sweep`) finishes. With the QR in a ``jax.pure_callback`` inside the
+    initialising program, 2 of 3 such processes hung (its argument's ``np.asarray``
+    never returned: docs/design.md §5)."""
+    import os
+    import subprocess
+    import sys
+
+    cpu = min(os.sched_getaffinity(0))
+    for _ in range(2):
+        done = subprocess.run([sys.executable, "-c", ONE_CPU_INITS], capture_output=True,
+                              text=True, timeout=90,
+                              preexec_fn=lambda: os.sched_setaffinity(0, {cpu}))
+        assert done.stdout.strip() == "done", done.stderr[-3000:]
 
 
 @pytest.mark.parametrize("constraint", ["penalty", "restriction"])

@@ -1,9 +1,13 @@
 """Policy and critics: one actor, one critic per phase (Flax linen).
 
 Orthogonal initialisation as in PPO implementations (hidden gain sqrt(2),
-policy head 0.01, value heads 1), by :func:`orthogonal`: JAX's own matrices,
-with the QR on the host, because jaxlib's QR kernel deadlocks when XLA runs two
-at once on a two-thread pool (docs/design.md §5).
+policy head 0.01, value heads 1): JAX's own matrices, made in two steps by
+:func:`init_params`. The modules' kernels are Gaussian draws
+(:func:`gaussian_draw`, in one compiled program); :func:`orthogonalize` turns them
+into orthogonal matrices on the host, after the program. No QR and no Python
+callback runs inside an XLA program: jaxlib's QR kernel deadlocked two at once on
+a two-thread pool, and a host QR in a callback deadlocked on one CPU
+(docs/design.md §5).
 """
 
 from __future__ import annotations
@@ -11,7 +15,8 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from functools import partial
+from typing import ClassVar, NamedTuple
 
 import flax.linen as nn
 import gymnasium as gym
@@ -40,23 +45,42 @@ def _positive_q(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def orthogonal(scale: float) -> Callable[..., jax.Array]:
-    """``jax.nn.initializers.orthogonal(scale)`` (a kernel ``[..., n_out]``), the same
-    matrices, with the QR computed on the host (:func:`_positive_q`). jaxlib's QR
-    kernel spreads a batch over XLA's thread pool and waits for its helpers there:
-    two QRs at once on a two-thread pool wait on each other for ever, which hung
-    one test process in three (docs/design.md §5)."""
+HIDDEN_GAIN = float(np.sqrt(2))  # the orthogonal scale of every hidden layer's kernel
 
-    def init(key: jax.Array, shape: Sequence[int], dtype=jnp.float32) -> jax.Array:
-        n_cols = shape[-1]
-        n_rows = math.prod(shape) // n_cols
-        z = jax.random.normal(key, (max(n_rows, n_cols), min(n_rows, n_cols)), dtype)
-        q = jax.pure_callback(_positive_q, jax.ShapeDtypeStruct(z.shape, z.dtype), z,
-                              vmap_method="expand_dims")
-        q = q.T if n_rows < n_cols else q
-        return jnp.array(scale, dtype) * q.reshape(shape)
 
-    return init
+def gaussian_draw(key: jax.Array, shape: Sequence[int], dtype=jnp.float32) -> jax.Array:
+    """The Gaussian matrix that ``jax.nn.initializers.orthogonal`` orthogonalises
+    for a kernel ``shape`` ``[n_in, n_out]`` from ``key``, laid out as the kernel
+    (transposed when it is wider than tall): :func:`orthogonal` of it is that
+    initialiser's kernel (a Flax initialiser, traceable)."""
+    n_cols = shape[-1]
+    n_rows = math.prod(shape) // n_cols
+    z = jax.random.normal(key, (max(n_rows, n_cols), min(n_rows, n_cols)), dtype)
+    return (z.T if n_rows < n_cols else z).reshape(shape)
+
+
+def orthogonal(draw: np.ndarray, scale: float) -> np.ndarray:
+    """``jax.nn.initializers.orthogonal(scale)``'s kernels ``[..., n_in, n_out]`` (any
+    leading axes: stacked kernels) from their :func:`gaussian_draw`, on the host, the
+    same numbers bit for bit (:func:`_positive_q`)."""
+    draw = np.asarray(draw)
+    wide = draw.shape[-2] < draw.shape[-1]
+    q = _positive_q(np.swapaxes(draw, -1, -2) if wide else draw)
+    return np.asarray(scale, draw.dtype) * (np.swapaxes(q, -1, -2) if wide else q)
+
+
+def orthogonalize(params: dict, out_gain: float) -> dict:
+    """A network's parameters with every kernel's :func:`gaussian_draw` made
+    :func:`orthogonal`: at ``out_gain`` in the output layer ``out``, at
+    :data:`HIDDEN_GAIN` in the hidden ones."""
+
+    def kernel(path: tuple, leaf: jax.Array) -> jax.Array:
+        keys = [getattr(k, "key", None) for k in path]
+        if keys[-1] != "kernel":
+            return leaf
+        return jnp.asarray(orthogonal(leaf, out_gain if "out" in keys else HIDDEN_GAIN))
+
+    return jax.tree_util.tree_map_with_path(kernel, params)
 
 
 #: blocks ``(start, stop)`` of an observation, each holding at most one non-zero number
@@ -97,39 +121,39 @@ class InputDense(nn.Module):
         return y
 
 
-def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, out_gain: float,
-                activation: str, onehots: OneHots = ()) -> jax.Array:
+def dense_stack(x: jax.Array, hidden: Sequence[int], out: int, activation: str,
+                onehots: OneHots = ()) -> jax.Array:
     """Hidden layers ``layer_0, layer_1, ...`` and the output layer ``out``, created in
     the calling module (call it from a compact method): named, so code that reads a
-    layer (:meth:`Critics.head`, the actor's softening) never depends on Flax's
-    automatic names. The first layer reads the input's ``onehots`` blocks by
-    :class:`InputDense`."""
+    layer (:meth:`Critics.head`, the actor's softening, :func:`orthogonalize`) never
+    depends on Flax's automatic names. Kernels start as :func:`gaussian_draw`s. The
+    first layer reads the input's ``onehots`` blocks by :class:`InputDense`."""
     act = ACTIVATIONS[activation]
     names, widths = [f"layer_{i}" for i in range(len(hidden))] + ["out"], [*hidden, out]
     for i, (name, width) in enumerate(zip(names, widths, strict=True)):
-        init = orthogonal(out_gain if name == "out" else np.sqrt(2))
         if i == 0 and onehots:
-            x = InputDense(width, onehots, init, name=name)(x)
+            x = InputDense(width, onehots, gaussian_draw, name=name)(x)
         else:
-            x = nn.Dense(width, kernel_init=init, bias_init=nn.initializers.zeros, name=name)(x)
+            x = nn.Dense(width, kernel_init=gaussian_draw, bias_init=nn.initializers.zeros,
+                         name=name)(x)
         if name != "out":
             x = act(x)
     return x
 
 
 class MLP(nn.Module):
-    """:func:`dense_stack` as a module."""
+    """:func:`dense_stack` as a module. The modules' ``init`` leaves every kernel a
+    :func:`gaussian_draw`; :func:`init_params` (or :func:`orthogonalize`) makes them
+    orthogonal."""
 
     hidden: Sequence[int]
     out: int
-    out_gain: float
     activation: str = "tanh"
     onehots: OneHots = ()
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        return dense_stack(x, self.hidden, self.out, self.out_gain, self.activation,
-                           self.onehots)
+        return dense_stack(x, self.hidden, self.out, self.activation, self.onehots)
 
 
 class Actor(nn.Module):
@@ -140,6 +164,7 @@ class Actor(nn.Module):
     Its output layer is ``out``; its first layer reads the observation's ``onehots``
     blocks by :class:`InputDense`."""
 
+    out_gain: ClassVar[float] = 0.01  # its output layer's orthogonal scale
     hidden: Sequence[int]
     n_out: int
     discrete: bool
@@ -170,7 +195,7 @@ class Actor(nn.Module):
     @nn.compact
     def __call__(self, obs: jax.Array) -> Distribution:
         width = self.n_out * self.bins if self.bins else self.n_out
-        out = dense_stack(obs, self.hidden, width, 0.01, self.activation, self.onehots)
+        out = dense_stack(obs, self.hidden, width, self.activation, self.onehots)
         if self.discrete:
             return Categorical(out)
         if self.bins:
@@ -197,6 +222,7 @@ class Critics(nn.Module):
     *normalised* values; :class:`ValueNorm` turns them into values.
     """
 
+    out_gain: ClassVar[float] = 1.0  # every head's output layer's orthogonal scale
     hidden: Sequence[int]
     k: int
     n_out: int = 1
@@ -207,14 +233,14 @@ class Critics(nn.Module):
     def __call__(self, obs: jax.Array) -> jax.Array:
         heads = nn.vmap(MLP, variable_axes={"params": 0}, split_rngs={"params": True},
                         in_axes=None, out_axes=-2, axis_size=self.k)
-        return heads(self.hidden, self.n_out, 1.0, self.activation, self.onehots,
+        return heads(self.hidden, self.n_out, self.activation, self.onehots,
                      name="heads")(obs)
 
     def head(self, params: dict, index: jax.Array, obs: jax.Array) -> jax.Array:
         """Head ``index``'s outputs ``[..., n_out]`` alone (one MLP instead of ``k``;
         the gradient reaches only that head's slice of ``params``)."""
         one = jax.tree.map(lambda x: x[index], params["heads"])
-        mlp = MLP(self.hidden, self.n_out, 1.0, self.activation, self.onehots, parent=None)
+        mlp = MLP(self.hidden, self.n_out, self.activation, self.onehots, parent=None)
         return mlp.apply({"params": one}, obs)
 
 
@@ -257,7 +283,18 @@ class ValueNorm(NamedTuple):
 
 def init_params(key: jax.Array, actor: Actor, critics: Critics,
                 obs_shape: tuple[int, ...]) -> dict:
-    """``{"actor": ..., "critics": ...}`` for one seed (call outside vmap)."""
+    """``{"actor": ..., "critics": ...}`` for one seed (call outside any jit or vmap):
+    :func:`draw_params` in one compiled program, then :func:`orthogonalize`d on the
+    host (module docstring)."""
+    draws = draw_params(key, actor, critics, tuple(obs_shape))
+    return {"actor": orthogonalize(draws["actor"], actor.out_gain),
+            "critics": orthogonalize(draws["critics"], critics.out_gain)}
+
+
+@partial(jax.jit, static_argnums=(1, 2, 3))
+def draw_params(key: jax.Array, actor: Actor, critics: Critics,
+                obs_shape: tuple[int, ...]) -> dict:
+    """The modules' parameters with every kernel a :func:`gaussian_draw`."""
     k_actor, k_critic = jax.random.split(key)
     dummy = jnp.zeros(obs_shape, jnp.float32)
     return {"actor": actor.init(k_actor, dummy)["params"],

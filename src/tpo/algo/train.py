@@ -218,10 +218,9 @@ class Trainer:
             [int(b) for b in self.phase_start[1:-1]])
 
     # ------------------------------------------------------------------ init
-    @partial(jax.jit, static_argnums=0)
     def init_params(self, key: jax.Array) -> dict:
-        """Network parameters of one seed (outside any vmap: docs/design.md §5; one
-        compiled program, not one per initialiser's operation)."""
+        """Network parameters of one seed (outside any jit or vmap: their QRs run on
+        the host, docs/design.md §5)."""
         return init_params(key, self.actor, self.critics, self.env.obs_shape)
 
     def init(self, key: jax.Array, params: dict | None = None,
