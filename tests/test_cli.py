@@ -301,8 +301,8 @@ def test_a_grid_run_trains_a_population_unless_told_and_old_runs_keep_one(tmp_pa
 def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     """Velocity actions take a factorised categorical of 5 values per dimension with a
     categorical's other defaults unless told otherwise; heading actions keep the
-    categorical defaults; both take the continuous state's telescoping penalty, the
-    grid not; a Gaussian keeps its own; a saved run keeps its own config."""
+    categorical defaults; both take the continuous state's telescoping penalty and GAE's
+    lambda, the grid not; a Gaussian keeps its own; a saved run keeps its own config."""
     from tpo.algo import TPO, TPOConfig
     from tpo.algo.config import GAUSSIAN_DEFAULTS
     from tpo.envs import ContinuousNav, load_map
@@ -314,7 +314,7 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
     assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
     continuous = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
-                  "dead_zone": 0.4}
+                  "dead_zone": 0.4, "gae_lambda": 0.98}
     robot = TPOConfig(action_bins=5, **continuous)
     assert RunSpec.from_settings({"dynamics": "continuous"}).config == robot
     assert RunSpec.from_settings({"dynamics": "continuous", "action": "heading"}).config \

@@ -66,9 +66,9 @@ def test_each_panel_trains_its_share_of_the_budget():
     assert [(p.key, xs) for p, xs in cont] == [
         (f"{n}-velocity", [0.0, 100.0]) for n in ("a", "b", "c", "d", "fig3")]
     assert {p.name: settings.steps_of(p) for p, _ in cont} == {
-        "a": 1_000_000, "b": 2_000_000, "c": 1_500_000, "d": 500_000, "fig3": 1_000_000}
+        "a": 1_000_000, "b": 2_000_000, "c": 1_250_000, "d": 375_000, "fig3": 1_000_000}
     assert budget_text(settings, continuous=True) == \
-        "2,000,000 in (b), 1,500,000 in (c), 1,000,000 in (a) (fig3), 500,000 in (d)"
+        "2,000,000 in (b), 1,250,000 in (c), 1,000,000 in (a) (fig3), 375,000 in (d)"
     assert Settings.quick().steps_of(cont[1][0]) == 600_000  # (b): the whole of --quick's
     assert [name for name, *_ in settings.jobs()][-5:] == [
         f"penalty-{n}-velocity" for n in ("a", "b", "c", "d", "fig3")]

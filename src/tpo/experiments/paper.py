@@ -74,11 +74,12 @@ SHARES = {"a": 1 / 2, "b": 1.0, "c": 3 / 4, "d": 1 / 2, "fig3": 3 / 4}
 # Settings.continuous_steps.
 CONTINUOUS_PANELS = ("a", "b", "c", "d", "fig3")
 # Each continuous panel's share of Settings.continuous_steps (2 M), measured with
-# velocity actions (docs/notes/tpo-learning.md, sessions 32 and 33): (b) takes the whole
-# (8/10; on 7/8 it fell to 4/10), (c) three quarters (10/10, as on the whole; 8/10 on
-# half), (a) and Figure 3 half (10/10 and 5/5; on 3/8 8/10 and 3/5), the fan (d) a
-# quarter (10/10 at value level, as on half).
-CONTINUOUS_SHARES = {"a": 1 / 2, "b": 1.0, "c": 3 / 4, "d": 1 / 4, "fig3": 1 / 2}
+# velocity actions (docs/notes/tpo-learning.md, sessions 32, 33 and 37): (b) takes the
+# whole (8/10; on 7/8 it fell to 4/10), (c) five eighths (at (100, 0) 10/10 on seeds 0-9
+# with GAE's lambda 0.98, 8/10 with 0.95; 6/10 on half), (a) and Figure 3 half (10/10
+# and 5/5; on 7/16 18/20 and 5/10), the fan (d) three sixteenths (19/20 at value level;
+# 6/10 on an eighth with lambda 0.95).
+CONTINUOUS_SHARES = {"a": 1 / 2, "b": 1.0, "c": 5 / 8, "d": 3 / 16, "fig3": 1 / 2}
 CONTINUOUS_FORM = "penalty"
 CONTINUOUS_SLACKS = (0.0, 100.0)
 CONTINUOUS_OBSERVATION = "factored"  # ContinuousNav's observation (a reproduction's setting)
