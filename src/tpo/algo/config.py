@@ -51,7 +51,9 @@ POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
 #: GAE's lambda 0.98: the robot takes two steps a cell (speed 0.5), so 0.98 per step is
 #: 0.96 per cell, near the grid's 0.95 per cell; the monitor phases of `G>M>A` at
 #: (100, 0) and `A>M>G` at (0, 0) find the study and the hallway on more seeds (17 of 20
-#: against 11 of 20, and 8 of 10 against 6 of 10, on part of their budget: session 37)
+#: against 11 of 20, and 8 of 10 against 6 of 10, on part of their budget), Figure 3's
+#: goal under a zero-slack avoid root ends short of its 5 % line on more (4 of 10
+#: against 2 of 10: session 37)
 CONTINUOUS_DEFAULTS = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
                        "dead_zone": 0.4, "gae_lambda": 0.98}
 
