@@ -258,7 +258,7 @@ def test_train_continuous_writes_a_run_judged_against_the_reference(tmp_path, ca
     assert "LAR-correct at value level (5 %)" in printed and "reference" in printed
     config = (out / "config.toml").read_text()
     assert 'dynamics = "continuous"' in config and 'action = "heading"' in config
-    assert "slip" not in config
+    assert "slip" not in config and "population = 2" in config
     result = json.loads((out / "eval.json").read_text())
     assert set(result) >= {"mc", "mc_noise_free", "reference", "lar_correct", "path",
                            "path_matches"}
@@ -271,17 +271,18 @@ def test_train_continuous_writes_a_run_judged_against_the_reference(tmp_path, ca
 def test_a_continuous_run_takes_the_continuous_budget_unless_told():
     from tpo.experiments.runspec import DEFAULT_STEPS, RunSpec
 
-    assert DEFAULT_STEPS == {"grid": 1_000_000, "continuous": 4_000_000}
-    assert RunSpec.from_settings({"dynamics": "continuous"}).steps == 4_000_000
+    assert DEFAULT_STEPS == {"grid": 1_000_000, "continuous": 8_000_000}
+    assert RunSpec.from_settings({"dynamics": "continuous"}).steps == 8_000_000
     assert RunSpec.from_settings({"dynamics": "continuous", "steps": 5000}).steps == 5000
     assert RunSpec.from_settings({}).steps == RunSpec().steps == 1_000_000
 
 
-def test_a_grid_run_trains_a_population_unless_told_and_old_runs_keep_one(tmp_path, capsys):
+def test_a_map_run_trains_a_population_unless_told_and_old_runs_keep_one(tmp_path, capsys):
     from tpo.experiments.runspec import RunSpec
 
     assert RunSpec.from_settings({}).population == RunSpec().population == 4
-    assert RunSpec.from_settings({"dynamics": "continuous"}).population == 1
+    assert RunSpec.from_settings({"dynamics": "continuous"}).population == 2
+    assert RunSpec.from_settings({"dynamics": "continuous"}, saved=True).population == 1
     assert RunSpec.from_settings({"env": "mo-gymnasium:deep-sea-treasure-v0",
                                   "objectives": "treasure,time"}).population == 1
     assert RunSpec.from_settings({}, saved=True).population == 1  # a run written before

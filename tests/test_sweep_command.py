@@ -125,7 +125,7 @@ def test_a_continuous_sweep_takes_the_continuous_budget_unless_told(tmp_path, mo
                                ["--dynamics", "continuous", "--steps", "50000"], [])):
         assert main(["sweep", "--slack", "0", *extra, "--out", str(tmp_path / str(i))]) == 0
     assert seen == [DEFAULT_STEPS["continuous"], 50000, DEFAULT_STEPS["grid"]] \
-        == [4_000_000, 50000, 1_000_000]
+        == [8_000_000, 50000, 1_000_000]
 
 
 @pytest.fixture(scope="module")
