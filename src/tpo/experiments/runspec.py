@@ -27,8 +27,8 @@ ACTION_KINDS = ("velocity", "heading")  # tpo.envs.continuous's (not imported: n
 #: sessions 17 and 38)
 DEFAULT_STEPS = {"grid": 1_000_000, "continuous": 8_000_000}
 #: learners of a ``tpo train`` run: a Gymnasium env's one (stepped on the host); the
-#: continuous robot's two, each on all the steps (a member that takes a zero-slack
-#: root's slower way is outvoted: session 38)
+#: continuous robot's two, each on all the steps (a member that misses a zero-slack
+#: path the other finds is outvoted: `hall` 2/3 against one learner's 1/3, session 38)
 DEFAULT_POPULATION = {"grid": 4, "continuous": 2, "env": 1}
 #: a run's observation when none is given, by dynamics (tpo.envs.grid's "auto":
 #: the factored numbers and the free cell's one-hot up to ONEHOT_CELLS free cells)
