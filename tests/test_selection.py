@@ -131,6 +131,27 @@ def test_a_leaf_that_lost_a_zero_slack_parent_s_best_does_not_hand_it_to_the_roo
         choose(returns, jnp.zeros(3), order, 10.0, held, edges=edges)
 
 
+def test_a_leaf_that_lost_a_parent_s_best_does_not_bar_that_objective_s_phase():
+    # M>A>G at (0, 0) on the continuous held2: the avoid phase keeps the monitor's
+    # closet (79.2) through the door's one wet cell (-5.9), the monitor phase through
+    # more of it (-6.8); the leaf's own policy never reaches the closet, so never
+    # steps on the wet floor (0). Its avoid of 0 bounds nothing: the avoid phase's
+    # policy answers, the one that keeps both zero-slack edges by LAR's rule.
+    returns = jnp.array([[79.18, -6.78, -98.21], [79.18, -5.90, -98.21],
+                         [0.0, 0.0, -98.21]])
+    held, order = jnp.array([True, True, False]), [2, 0, 1]
+    edges, allowance = [(0, 1), (1, 2)], jnp.zeros(2)
+    penalty = jnp.array([1.2, 0.0, 30.0])
+    assert int(choose(returns, penalty, order, 10.0, held, edges=edges,
+                      allowance=allowance)) == 1
+    # Without the edges the leaf's avoid stands: the avoid phase is no candidate.
+    assert int(choose(returns, penalty, order, 10.0, held)) == 0
+    # A leaf that keeps the monitor's best bounds the avoid phase as before.
+    kept = returns.at[2].set(jnp.array([79.18, -5.0, -98.21]))
+    assert int(choose(kept, penalty.at[2].set(0.0), order, 10.0, held, edges=edges,
+                      allowance=allowance)) == 2
+
+
 def test_a_run_s_pick_holds_the_graph_s_edges_at_their_start_allowance():
     # Trainer.pick passes the graph's edges and each slack's start value to choose:
     # the same G>M>A (100, 0) candidates as above, on the grid (no training).

@@ -48,7 +48,11 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     real loss of a few reward units. With ``edges`` and ``allowance`` (as in
     :func:`choose_member`), a candidate must also keep the leaf's ancestral edges
     by LAR's rule on the candidates' returns, if an admissible one does: the
-    reference may itself have lost a zero-slack parent's best. Among the
+    reference may itself have lost a zero-slack parent's best. Where it lost one
+    of an objective's ancestral edges by that rule, its return of the objective
+    bounds nothing (a leaf that never reaches the monitored room keeps off the rug
+    for free),
+    so that objective's phase need not match it there. Among the
     admissible ones, keep those tied with the best return of phase ``p`` for each
     ``p`` in ``order`` (the leaf's objective first, then its ancestors roots
     first), and of those the reference if it is still tied, else the latest.
@@ -61,6 +65,11 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     ref = returns[reference]
     tolerance = _tolerance(ref)
     own = jnp.diagonal(returns) >= ref - tolerance
+    if edges:  # a reference that loses an objective's parents says nothing of its optimum
+        objectives = max(order) + 1
+        lost = jnp.stack([~keepers(returns, ref[None], edges, allowance, v + 1)[0]
+                          for v in range(objectives)])
+        own = own | jnp.zeros(n, bool).at[:objectives].set(lost)
     keep = own & (penalty <= penalty[reference] + penalty_tolerance)
     if held is not None:  # lexicographically no worse on the held objectives
         held = jnp.asarray(held, bool)
