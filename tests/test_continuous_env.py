@@ -7,10 +7,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tpo.envs import load_map, parse_map
-from tpo.envs.continuous import ContinuousNav, headings
+from tpo.envs import from_spec, load_map, parse_map
+from tpo.envs.continuous import ContinuousNav, ContinuousState, headings
 from tpo.errors import MapError
-from tpo.sensing import blocked, cell_features, pad_walls, range_readings, ray_distances
+from tpo.sensing import (
+    blocked,
+    cell_features,
+    pad_walls,
+    place_features,
+    range_readings,
+    ray_distances,
+)
 
 ROOM = '''
 max_steps = 6
@@ -126,6 +133,25 @@ def test_cell_features_by_hand():
     assert np.isclose(f[:4].sum(), 1.0) and np.isclose(f[4:].sum(), 1.0)
 
 
+def test_place_features_by_hand(room):
+    # At cell (1, 1)'s centre: its one-hot. Between the centres of rows 1 and 2, a
+    # quarter of the way from column 1's centre to column 0's: the bilinear weights
+    # of the four nearest centres (row 1 or 2 by 0.5, column 1 by 0.75 or 0 by 0.25).
+    assert place_features(np.array([1.5, 1.5], np.float32), (4, 3)).tolist() == [
+        0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0]
+    f = place_features(np.array([2.0, 1.25], np.float32), (4, 3)).reshape(4, 3)
+    assert np.allclose(f, [[0, 0, 0], [0.125, 0.375, 0], [0.125, 0.375, 0], [0, 0, 0]])
+    # The env's observation: the factored one's, then these (5 x 6 map).
+    places = ContinuousNav(room.navmap, max_range=4.0, observation="factored+onehot")
+    assert places.observation == "factored+onehot"
+    assert places.obs_shape == (room.obs_shape[0] + 30,)
+    obs = np.asarray(places.reset(jax.random.key(0), places.params)[0])
+    assert np.array_equal(obs[:room.obs_shape[0]],
+                          np.asarray(room.reset(jax.random.key(0), room.params)[0]))
+    assert obs[room.obs_shape[0]:].reshape(5, 6)[1, 1] == 1 and obs[-30:].sum() == 1
+    assert from_spec(places.to_spec()).obs_shape == places.obs_shape
+
+
 def test_bad_settings_are_rejected():
     m = load_map("home")
     with pytest.raises(MapError, match="unknown action kind 'torque'"):
@@ -196,7 +222,6 @@ def test_what_was_saved_before_the_factored_observation_reads_as_coords():
     """A continuous env spec, a run's settings and an exported observer written before
     the factored observation existed mean the coordinates alone; new ones say which."""
     from tpo.deploy import _observer
-    from tpo.envs import from_spec
     from tpo.experiments.runspec import RunSpec
 
     env = ContinuousNav(load_map("small"))
@@ -213,3 +238,16 @@ def test_what_was_saved_before_the_factored_observation_reads_as_coords():
     arrays["observer/walls"] = np.asarray(env.navmap.walls)
     assert not _observer("continuous", arrays).factored
     assert _observer("continuous", {**arrays, "observer/factored": np.asarray(True)}).factored
+
+
+def test_the_deployed_observer_computes_the_place_tents():
+    from tpo.deploy import _observer
+
+    env = ContinuousNav(load_map("small"), observation="factored+onehot")
+    arrays = {f"observer/{n}": np.asarray(getattr(env.params, n)) for n in
+              ("avoid", "monitor", "beams", "ray_t", "factored", "places")}
+    arrays["observer/walls"] = np.asarray(env.navmap.walls)
+    pos = np.asarray(env.navmap.start, np.float32) + [0.3, 0.7]
+    state = ContinuousState(pos=jnp.asarray(pos), time=jnp.int32(0))
+    np.testing.assert_allclose(_observer("continuous", arrays).observe(pos),
+                               np.asarray(env.observe(state, env.params)), atol=1e-6)

@@ -67,6 +67,7 @@ class ContinuousObserver:
     beams: np.ndarray  # [K, 2] sensor directions (d_row, d_col), clockwise from up
     ray_t: np.ndarray  # [M] distances sampled along a beam
     factored: bool = False  # the observation ends with sensing.cell_features
+    places: bool = False  # then with sensing.place_features
 
     @property
     def max_range(self) -> float:
@@ -82,8 +83,9 @@ class ContinuousObserver:
         return sensing.pad_walls(self.walls)
 
     def observe(self, position: Any, ranges: Any | None = None) -> np.ndarray:
-        """The observation ``float32 [4 + K]`` (``[4 + K + H + W]`` when
-        :attr:`factored`) at ``position`` (row, col in cells) with the robot's own
+        """The observation ``float32 [4 + K]`` (``H + W`` more numbers when
+        :attr:`factored`, then ``H * W`` when :attr:`places`) at ``position`` (row,
+        col in cells) with the robot's own
         ``ranges [K]`` (cells; by default :meth:`ranges`)."""
         pos = self._position(position)
         readings = self.ranges(pos) if ranges is None else _numbers(ranges, "ranges")
@@ -92,7 +94,8 @@ class ContinuousObserver:
                               f"{np.asarray(ranges)!r:.80}")
         readings = np.minimum(readings, np.float32(self.max_range))  # the sensor's reach
         return sensing.observation(pos, readings, self.avoid, self.monitor,
-                                   np.float32(self.max_range), factored=self.factored)
+                                   np.float32(self.max_range), factored=self.factored,
+                                   places=self.places)
 
     def _position(self, position: Any) -> np.ndarray:
         pos = _numbers(position, "position", np.float64)
@@ -222,7 +225,8 @@ def _observer(kind: str, arrays: dict[str, np.ndarray]
     if kind == "continuous":
         return ContinuousObserver(*(arrays[f"observer/{n}"] for n in
                                     ("walls", "avoid", "monitor", "beams", "ray_t")),
-                                  factored=bool(arrays.get("observer/factored", False)))
+                                  factored=bool(arrays.get("observer/factored", False)),
+                                  places=bool(arrays.get("observer/places", False)))
     if kind in ("factored", "onehot", "coords", "factored+onehot"):
         return GridObserver(arrays["observer/table"])
     return None  # an env of the user's own: its observations are the env's

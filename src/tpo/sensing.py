@@ -59,10 +59,11 @@ def range_readings(pos: Any, padded: Any, beams: Any, ray_t: Any, xp: Any = np) 
 
 
 def observation(pos: Any, distances: Any, avoid: Any, monitor: Any, max_range: Any,
-                xp: Any = np, factored: bool = False) -> Any:
+                xp: Any = np, factored: bool = False, places: bool = False) -> Any:
     """The observation ``[4 + K]``: ``pos`` scaled to ``[0, 1]`` by the map's shape,
     ``distances [K]`` divided by ``max_range``, and whether ``pos`` is in an avoid and
-    in a monitor region; ``factored`` appends :func:`cell_features` (``[4 + K + H + W]``)."""
+    in a monitor region; ``factored`` appends :func:`cell_features` (``H + W``
+    numbers), then ``places`` :func:`place_features` (``H * W``)."""
     h, w = avoid.shape
     cell = xp.floor(pos).astype(xp.int32)
     parts = [pos / xp.array([h, w], xp.float32),
@@ -70,6 +71,8 @@ def observation(pos: Any, distances: Any, avoid: Any, monitor: Any, max_range: A
              xp.stack([avoid[cell[0], cell[1]], monitor[cell[0], cell[1]]]).astype(xp.float32)]
     if factored:
         parts.append(cell_features(pos, (h, w), xp))
+    if places:
+        parts.append(place_features(pos, (h, w), xp))
     return xp.concatenate(parts)
 
 
@@ -85,3 +88,15 @@ def cell_features(pos: Any, shape: tuple[int, int], xp: Any = np) -> Any:
     row = xp.maximum(0.0, 1.0 - xp.abs(pos[0] - (xp.arange(h, dtype=xp.float32) + 0.5)))
     col = xp.maximum(0.0, 1.0 - xp.abs(pos[1] - (xp.arange(w, dtype=xp.float32) + 0.5)))
     return xp.concatenate([row, col]).astype(xp.float32)
+
+
+def place_features(pos: Any, shape: tuple[int, int], xp: Any = np) -> Any:
+    """A tent about every cell's centre, ``[H * W]`` (row-major): the product of the
+    cell's row and column tents of :func:`cell_features`, so at a cell's centre its
+    one-hot and in between the bilinear weights of the (up to 4) nearest centres.
+    The row and column tents alone let a network value a place by its column, as a
+    corridor below a door (docs/notes/tpo-learning.md, session 39); these tell
+    places apart."""
+    h, w = shape
+    tents = cell_features(pos, shape, xp)
+    return (tents[:h, None] * tents[None, h:]).reshape(h * w)

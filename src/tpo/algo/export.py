@@ -67,10 +67,13 @@ def observer_arrays(model: TPO) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
                             "max_range along the beams (clockwise from up), then in-avoid "
                             "and in-monitor flags, then with observer/factored a tent "
                             "max(0, 1 - |pos - (i + 1/2)|) about every row's and column's "
-                            "centre (tpo.sensing.observation)",
+                            "centre, then with observer/places the product of a cell's "
+                            "row and column tents for every cell, row-major "
+                            "(tpo.sensing.observation)",
                  "n_beams": int(p.beams.shape[0]), "max_range": float(p.ray_t[-1])},
                 {"observer/walls": np.asarray(env.navmap.walls, bool),
                  "observer/factored": np.asarray(p.factored),
+                 "observer/places": np.asarray(p.places),
                  **{f"observer/{n}": np.asarray(getattr(p, n)) for n in
                     ("avoid", "monitor", "beams", "ray_t")}})
     return ({"kind": "env", "encoder": "the observation of the env the policy was trained "

@@ -27,7 +27,10 @@ tents of the position about every row's and column's centre
 continuous), ``"coords"`` leaves them out. Measured on ``home`` (velocity
 actions, ``M>A>G`` at slack 0, 5 seeds): the learned monitor value 61.1-61.7
 with them against 59.9-60.5 without, the reference's 62.7
-(docs/notes/tpo-learning.md, session 16).
+(docs/notes/tpo-learning.md, session 16). ``"factored+onehot"`` appends ``H * W``
+tents about every cell's centre after them (:func:`tpo.sensing.place_features`,
+the grid's cell one-hot made continuous), so that no place is valued by its
+column alone (session 39).
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ from tpo.errors import MapError
 from tpo.sensing import blocked, observation, pad_walls, range_readings, ray_distances
 
 ACTION_KINDS = ("velocity", "heading")
-OBSERVATIONS = ("factored", "coords")
+OBSERVATIONS = ("factored", "coords", "factored+onehot")
 
 
 def headings(n: int) -> np.ndarray:
@@ -69,6 +72,7 @@ class ContinuousParams:
     beams: jax.Array  # float32 [K, 2] sensor directions
     ray_t: jax.Array  # float32 [M] distances sampled along a beam
     factored: bool = struct.field(pytree_node=False)  # + cell_features (static: a shape)
+    places: bool = struct.field(pytree_node=False)  # + place_features
 
 
 @struct.dataclass
@@ -110,16 +114,19 @@ class ContinuousNav(JaxEnv):
             speed=jnp.float32(speed), noise=jnp.float32(noise),
             beams=jnp.asarray(headings(n_beams)),
             ray_t=jnp.asarray(ray_distances(max_range)),
-            factored=observation == "factored")
+            factored=observation != "coords", places=observation == "factored+onehot")
 
     @property
     def observation(self) -> str:
         """The observation's kind (one of :data:`OBSERVATIONS`)."""
+        if self.params.places:
+            return "factored+onehot"
         return "factored" if self.params.factored else "coords"
 
     @property
     def obs_shape(self) -> tuple[int]:
-        cells = sum(self.navmap.shape) if self.params.factored else 0
+        h, w = self.navmap.shape
+        cells = (h + w) * self.params.factored + h * w * self.params.places
         return (4 + int(self.params.beams.shape[0]) + cells,)
 
     def to_spec(self) -> dict[str, Any]:
@@ -147,7 +154,7 @@ class ContinuousNav(JaxEnv):
         """:func:`tpo.sensing.observation` of the robot's position."""
         distances = range_readings(state.pos, params.walls, params.beams, params.ray_t, jnp)
         return observation(state.pos, distances, params.avoid, params.monitor,
-                           params.ray_t[-1], jnp, params.factored)
+                           params.ray_t[-1], jnp, params.factored, params.places)
 
     @staticmethod
     def displacement(action: jax.Array, params: ContinuousParams) -> jax.Array:

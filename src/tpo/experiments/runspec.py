@@ -77,7 +77,8 @@ class RunSpec:
     observation: str = field(default=DEFAULT_OBSERVATION["grid"],
                              metadata={"choices": OBSERVATIONS})
     """grid: auto (default), factored, onehot, coords or factored+onehot; continuous:
-    factored (default) or coords"""
+    factored (default), coords or factored+onehot (a tent about every cell's centre
+    too)"""
     action: str = field(default="velocity", metadata={"choices": ACTION_KINDS})
     """continuous: velocity (a 2-vector) or heading (one of 8 compass headings)"""
     noise: float = 0.0
