@@ -1,7 +1,9 @@
 """End-to-end training throughput: TPO (3 objectives) vs plain PPO in the same code vs
 a CleanRL-style PyTorch PPO vs Stable-Baselines3 PPO, on the same grid map; TPO on the
 continuous env of the same map (``tpo-velocity``, ``tpo-heading``: range sensors and
-collision checks every step) against TPO on the grid; and TPO's
+collision checks every step) against TPO on the grid, and with a tent about every
+cell's centre in the observation (``tpo-velocity-places``: ``factored+onehot``)
+against the velocity robot's default; and TPO's
 host-stepped path (``tpo-host``: the same map as a NumPy Gymnasium env with vector
 rewards; ``tpo-host-gym``: the registered ``tpo/GridNav-home-v0``) vs its JAX path.
 
@@ -157,11 +159,11 @@ def timed(warm_up, run, state, steps: int) -> dict:
 
 
 # ------------------------------------------------------------------------ JAX
-def run_jax(dag: str, n_envs: int, updates: int, seeds: int = 1, action: str | None = None
-            ) -> dict:
+def run_jax(dag: str, n_envs: int, updates: int, seeds: int = 1, action: str | None = None,
+            observation: str = "factored") -> dict:
     """TPO's trainer on the grid, or with ``action`` on the continuous env of the same
-    map (velocity or heading actions); with ``seeds`` > 1, that many runs vmapped in
-    one program (the steps of all of them counted)."""
+    map (velocity or heading actions; its ``observation``); with ``seeds`` > 1, that
+    many runs vmapped in one program (the steps of all of them counted)."""
     import jax
     import jax.numpy as jnp
 
@@ -170,7 +172,8 @@ def run_jax(dag: str, n_envs: int, updates: int, seeds: int = 1, action: str | N
     from tpo.graph import ObjectiveGraph
 
     env = (GridNav(load_map(MAP), random_start=True) if action is None
-           else ContinuousNav(load_map(MAP), action=action, random_start=True))
+           else ContinuousNav(load_map(MAP), action=action, random_start=True,
+                              observation=observation))
     config = TPOConfig(num_envs=n_envs, num_steps=NUM_STEPS)
     graph = ObjectiveGraph.parse(dag, 0.0, objectives=env.objectives)
     n_phases = len(graph.order)
@@ -321,6 +324,8 @@ LEARNERS = {
     "tpo-x8": lambda n, u: run_jax("M>A>G", n, u, seeds=8),
     "tpo-velocity": lambda n, u: run_jax("M>A>G", n, u, action="velocity"),
     "tpo-heading": lambda n, u: run_jax("M>A>G", n, u, action="heading"),
+    "tpo-velocity-places": lambda n, u: run_jax("M>A>G", n, u, action="velocity",
+                                                observation="factored+onehot"),
     "tpo-host": run_host,
     "tpo-host-gym": lambda n, u: run_host(n, u, "tpo/GridNav-home-v0"),
     "torch": run_torch,
@@ -352,7 +357,8 @@ def main() -> None:
         return
     # steps/s (per run), to size the measurements
     guess = {"tpo": 60e3, "ppo": 70e3, "torch": 15e3, "sb3": 4e3, "sb3-vec": 15e3,
-             "tpo-x8": 15e3, "tpo-velocity": 40e3, "tpo-heading": 40e3, "tpo-host": 8e3,
+             "tpo-x8": 15e3, "tpo-velocity": 40e3, "tpo-heading": 40e3,
+             "tpo-velocity-places": 20e3, "tpo-host": 8e3,
              "tpo-host-gym": 2e3}
     rows = {}
     for n_envs in args.envs:
@@ -373,7 +379,8 @@ def main() -> None:
         ratios = [f"{a}/{b} {r[a] / r[b]:.2f}x" for a, b in
                   (("tpo", "ppo"), ("tpo", "torch"), ("tpo", "sb3"), ("tpo", "sb3-vec"),
                    ("ppo", "torch"), ("tpo-x8", "sb3"), ("tpo-velocity", "tpo"),
-                   ("tpo-heading", "tpo"), ("tpo-host", "tpo"),
+                   ("tpo-heading", "tpo"), ("tpo-velocity-places", "tpo-velocity"),
+                   ("tpo-host", "tpo"),
                    ("tpo-host-gym", "tpo"))
                   if a in r and b in r]
         print(f"{n_envs:4d} envs: " + ", ".join(ratios))
