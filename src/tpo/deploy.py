@@ -85,8 +85,8 @@ class ContinuousObserver:
     def observe(self, position: Any, ranges: Any | None = None) -> np.ndarray:
         """The observation ``float32 [4 + K]`` (``H + W`` more numbers when
         :attr:`factored`, then ``H * W`` when :attr:`places`) at ``position`` (row,
-        col in cells) with the robot's own
-        ``ranges [K]`` (cells; by default :meth:`ranges`)."""
+        col in cells) with the robot's own ``ranges [K]`` (cells; by default
+        :meth:`ranges`)."""
         pos = self._position(position)
         readings = self.ranges(pos) if ranges is None else _numbers(ranges, "ranges")
         if readings.shape != (len(self.beams),) or not np.all(readings >= 0):
