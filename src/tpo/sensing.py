@@ -69,10 +69,12 @@ def observation(pos: Any, distances: Any, avoid: Any, monitor: Any, max_range: A
     parts = [pos / xp.array([h, w], xp.float32),
              distances / max_range,
              xp.stack([avoid[cell[0], cell[1]], monitor[cell[0], cell[1]]]).astype(xp.float32)]
-    if factored:
-        parts.append(cell_features(pos, (h, w), xp))
-    if places:
-        parts.append(place_features(pos, (h, w), xp))
+    if factored or places:
+        tents = cell_features(pos, (h, w), xp)
+        if factored:
+            parts.append(tents)
+        if places:
+            parts.append(_products(tents, h))
     return xp.concatenate(parts)
 
 
@@ -97,6 +99,10 @@ def place_features(pos: Any, shape: tuple[int, int], xp: Any = np) -> Any:
     The row and column tents alone let a network value a place by its column, as a
     corridor below a door (docs/notes/tpo-learning.md, session 39); these tell
     places apart."""
-    h, w = shape
-    tents = cell_features(pos, shape, xp)
-    return (tents[:h, None] * tents[None, h:]).reshape(h * w)
+    return _products(cell_features(pos, shape, xp), shape[0])
+
+
+def _products(tents: Any, h: int) -> Any:
+    """Every cell's row tent times its column tent, row-major, from
+    :func:`cell_features` ``tents`` of a map ``h`` rows high."""
+    return (tents[:h, None] * tents[None, h:]).reshape(-1)

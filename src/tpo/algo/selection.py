@@ -51,8 +51,7 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     reference may itself have lost a zero-slack parent's best. Where it lost one
     of an objective's ancestral edges by that rule, its return of the objective
     bounds nothing (a leaf that never reaches the monitored room keeps off the rug
-    for free),
-    so that objective's phase need not match it there. Among the
+    for free), so that objective's phase need not match it there. Among the
     admissible ones, keep those tied with the best return of phase ``p`` for each
     ``p`` in ``order`` (the leaf's objective first, then its ancestors roots
     first), and of those the reference if it is still tied, else the latest.
@@ -65,11 +64,10 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     ref = returns[reference]
     tolerance = _tolerance(ref)
     own = jnp.diagonal(returns) >= ref - tolerance
-    if edges:  # a reference that loses an objective's parents says nothing of its optimum
-        objectives = max(order) + 1
-        lost = jnp.stack([~keepers(returns, ref[None], edges, allowance, v + 1)[0]
-                          for v in range(objectives)])
-        own = own | jnp.zeros(n, bool).at[:objectives].set(lost)
+    if edges:  # [objective, candidate]: keeps the objective's ancestral edges
+        kept = keepers(returns, returns, edges, allowance, max(order) + 1)
+        # a reference that loses an objective's parents says nothing of its optimum
+        own = own | jnp.zeros(n, bool).at[:kept.shape[0]].set(~kept[:, reference])
     keep = own & (penalty <= penalty[reference] + penalty_tolerance)
     if held is not None:  # lexicographically no worse on the held objectives
         held = jnp.asarray(held, bool)
@@ -79,7 +77,7 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
             keep = keep & (decided | ~worse)
             decided = decided | held[p] & (returns[:, p] > ref[p] + tolerance[p])
     if edges:
-        lar = keepers(returns, returns, edges, allowance, max(order) + 1)
+        lar = kept[-1]
         keep = jnp.where((keep & lar).any(), keep & lar, keep)
     for p in order:
         best = jnp.max(jnp.where(keep, returns[:, p], -jnp.inf))
@@ -108,7 +106,7 @@ def choose_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[in
     """
     m, n = returns.shape[:2]
     answers = returns[jnp.arange(m), picks]
-    lar = keepers(returns.reshape(m * n, -1), answers, edges, allowance, max(order) + 1)
+    lar = keepers(returns.reshape(m * n, -1), answers, edges, allowance, max(order) + 1)[-1]
     keep = lar | ~lar.any()
     for p in order:
         top = jnp.max(jnp.where(keep, answers[:, p], -jnp.inf))
@@ -118,13 +116,13 @@ def choose_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[in
 
 def keepers(pool: jax.Array, values: jax.Array, edges: Sequence[tuple[int, int]],
             allowance: jax.Array, objectives: int) -> jax.Array:
-    """Which of ``values [N, P]`` keep the last objective's ancestral edges by LAR's
+    """Which of ``values [N, P]`` keep each objective's ancestral edges by LAR's
     rule on the policies' returns ``pool [M, P]`` (:func:`choose_member`): taking the
     objectives (the first ``objectives`` columns) in topological order, ``w``'s best
     is its largest return among the policies of ``pool`` that keep ``w``'s ancestral
     edges, and a policy keeps the edge ``(w, v)`` (``edges[e]``) when its return of
     ``w`` is at least that best less ``allowance[e]`` and the judge's tolerance.
-    ``[N]`` bool."""
+    ``[objectives, N]`` bool (a root's row all true)."""
     in_pool, in_values, best = [], [], []
     for v in range(objectives):
         keep_pool = jnp.ones(pool.shape[0], bool)
@@ -137,7 +135,7 @@ def keepers(pool: jax.Array, values: jax.Array, edges: Sequence[tuple[int, int]]
         in_pool.append(keep_pool)
         in_values.append(keep_values)
         best.append(jnp.max(jnp.where(keep_pool, pool[:, v], -jnp.inf)))
-    return in_values[-1]
+    return jnp.stack(in_values)
 
 
 def _tolerance(value: jax.Array) -> jax.Array:
