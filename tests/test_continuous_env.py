@@ -152,6 +152,24 @@ def test_place_features_by_hand(room):
     assert from_spec(places.to_spec()).obs_shape == places.obs_shape
 
 
+def test_auto_is_the_place_tents_up_to_place_cells_cells_and_a_run_s_default():
+    from tpo.envs.continuous import PLACE_CELLS
+    from tpo.experiments.runspec import RunSpec
+
+    wide = PLACE_CELLS // 6 + 1  # 4 rows inside a border: more than PLACE_CELLS cells
+    big = parse_map('grid = """\n' + "\n".join(
+        ["#" * wide, "#S" + "." * (wide - 3) + "#", *["#" + "." * (wide - 2) + "#"] * 2,
+         "#" + "." * (wide - 3) + "G#", "#" * wide]) + '\n"""\n')
+    assert big.shape == (6, wide) and 6 * wide > PLACE_CELLS
+    env = ContinuousNav(big, observation="auto")
+    assert env.observation == "factored" and env.obs_shape == (4 + 8 + 6 + wide,)
+    assert from_spec(env.to_spec()).observation == "factored"
+    home = ContinuousNav(load_map("home"), observation="auto")
+    assert home.observation == "factored+onehot" and home.obs_shape == (4 + 8 + 41 + 330,)
+    run = RunSpec.from_settings({"dynamics": "continuous", "map": "home"})
+    assert run.model().env.observation == "factored+onehot"
+
+
 def test_bad_settings_are_rejected():
     m = load_map("home")
     with pytest.raises(MapError, match="unknown action kind 'torque'"):
@@ -230,7 +248,7 @@ def test_what_was_saved_before_the_factored_observation_reads_as_coords():
     old = {k: v for k, v in spec.items() if k != "observation"}
     assert from_spec(old).observation == "coords"
     assert RunSpec.from_settings({"dynamics": "continuous"}, saved=True).observation == "coords"
-    assert RunSpec.from_settings({"dynamics": "continuous"}).observation == "factored"
+    assert RunSpec.from_settings({"dynamics": "continuous"}).observation == "auto"
     run = RunSpec.from_settings({"dynamics": "continuous", "observation": "coords"})
     assert RunSpec.from_settings(tomllib.loads(run.to_toml()), saved=True) == run
     arrays = {f"observer/{n}": np.asarray(getattr(env.params, n)) for n in

@@ -116,16 +116,19 @@ def test_a_folder_of_the_users_is_not_a_sweep(tmp_path, capsys):
 
 
 def test_a_continuous_sweep_takes_the_continuous_budget_unless_told(tmp_path, monkeypatch):
+    """... and a run's observation: on the paper's map the cell tents (continuous) and
+    the cell's one-hot (grid)."""
     import tpo.cli.main as cli
 
     seen = []
     monkeypatch.setattr(cli, "_learned_sweep", lambda args, out, spec, engine: seen.append(
-        spec.steps) or SimpleNamespace(summary=str))
+        (spec.steps, spec.env().observation)) or SimpleNamespace(summary=str))
     for i, extra in enumerate((["--dynamics", "continuous"],
                                ["--dynamics", "continuous", "--steps", "50000"], [])):
         assert main(["sweep", "--slack", "0", *extra, "--out", str(tmp_path / str(i))]) == 0
-    assert seen == [DEFAULT_STEPS["continuous"], 50000, DEFAULT_STEPS["grid"]] \
+    assert [s for s, _ in seen] == [DEFAULT_STEPS["continuous"], 50000, DEFAULT_STEPS["grid"]] \
         == [8_000_000, 50000, 1_000_000]
+    assert [o for _, o in seen] == ["factored+onehot"] * 3
 
 
 @pytest.fixture(scope="module")

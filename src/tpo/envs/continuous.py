@@ -30,7 +30,10 @@ with them against 59.9-60.5 without, the reference's 62.7
 (docs/notes/tpo-learning.md, session 16). ``"factored+onehot"`` appends ``H * W``
 tents about every cell's centre after them (:func:`tpo.sensing.place_features`,
 the grid's cell one-hot made continuous), so that no place is valued by its
-column alone (session 39).
+column alone (session 39). ``"auto"`` is ``"factored+onehot"`` on maps of at most
+:data:`PLACE_CELLS` cells (``H * W``, walls included: the cell tents are a dense
+first layer's inputs) and ``"factored"`` on larger ones; the env records the kind it
+chose (:attr:`ContinuousNav.observation`).
 """
 
 from __future__ import annotations
@@ -50,6 +53,18 @@ from tpo.sensing import blocked, observation, pad_walls, range_readings, ray_dis
 
 ACTION_KINDS = ("velocity", "heading")
 OBSERVATIONS = ("factored", "coords", "factored+onehot")
+PLACE_CELLS = 1024  # "auto" adds the cell tents on maps of up to this many cells
+
+
+def observation_kind(navmap: NavMap, kind: str) -> str:
+    """``kind``, with ``"auto"`` resolved for ``navmap`` (module docstring)."""
+    if kind == "auto":
+        h, w = navmap.shape
+        return "factored+onehot" if h * w <= PLACE_CELLS else "factored"
+    if not isinstance(kind, str) or kind not in OBSERVATIONS:
+        raise MapError(f"unknown continuous observation {kind!r:.40}; choose one of auto, "
+                       f"{', '.join(OBSERVATIONS)}")
+    return kind
 
 
 def headings(n: int) -> np.ndarray:
@@ -90,9 +105,7 @@ class ContinuousNav(JaxEnv):
                  observation: str = "factored") -> None:
         if action not in ACTION_KINDS:
             raise MapError(f"unknown action kind '{action}'; choose velocity or heading")
-        if observation not in OBSERVATIONS:
-            raise MapError(f"unknown continuous observation '{observation}'; choose one of "
-                           f"{', '.join(OBSERVATIONS)}")
+        observation = observation_kind(navmap, observation)
         if not 0 < speed <= 1:
             raise MapError(f"speed must be in (0, 1] cells per step, got {speed}")
         if noise < 0 or not np.isfinite(noise):

@@ -30,9 +30,12 @@ DEFAULT_STEPS = {"grid": 1_000_000, "continuous": 8_000_000}
 #: continuous robot's two, each on all the steps (a member that misses a zero-slack
 #: path the other finds is outvoted: `hall` 2/3 against one learner's 1/3, session 38)
 DEFAULT_POPULATION = {"grid": 4, "continuous": 2, "env": 1}
-#: a run's observation when none is given, by dynamics (tpo.envs.grid's "auto":
-#: the factored numbers and the free cell's one-hot up to ONEHOT_CELLS free cells)
-DEFAULT_OBSERVATION = {"grid": "auto", "continuous": "factored"}
+#: a run's observation when none is given: "auto", on a grid the factored numbers and
+#: the free cell's one-hot up to tpo.envs.grid's ONEHOT_CELLS free cells, in continuous
+#: space the row and column tents and a tent about every cell's centre up to
+#: tpo.envs.continuous's PLACE_CELLS cells (without them the critics value a place by
+#: its column: held-out maps, docs/notes/tpo-learning.md, sessions 39 and 40)
+DEFAULT_OBSERVATION = "auto"
 # tpo.envs.grid's and "auto" (not imported: no JAX here)
 OBSERVATIONS = ("auto", "factored", "onehot", "coords", "factored+onehot")
 
@@ -74,11 +77,10 @@ class RunSpec:
     """grid (cell moves) or continuous (a point robot with range sensors) on the map"""
     slip: float = 0.0
     """grid: probability that a move goes in another direction"""
-    observation: str = field(default=DEFAULT_OBSERVATION["grid"],
-                             metadata={"choices": OBSERVATIONS})
+    observation: str = field(default=DEFAULT_OBSERVATION, metadata={"choices": OBSERVATIONS})
     """grid: auto (default), factored, onehot, coords or factored+onehot; continuous:
-    factored (default), coords or factored+onehot (a tent about every cell's centre
-    too)"""
+    auto (default), factored (row and column tents), coords or factored+onehot (a tent
+    about every cell's centre too; what auto is on maps of up to 1024 cells)"""
     action: str = field(default="velocity", metadata={"choices": ACTION_KINDS})
     """continuous: velocity (a 2-vector) or heading (one of 8 compass headings)"""
     noise: float = 0.0
@@ -99,7 +101,6 @@ class RunSpec:
         continuous = settings.get("dynamics") == "continuous"
         if continuous:
             defaults["steps"] = DEFAULT_STEPS["continuous"]
-            defaults["observation"] = DEFAULT_OBSERVATION["continuous"]
             defaults["population"] = DEFAULT_POPULATION["continuous"]
         if settings.get("env"):
             defaults["population"] = DEFAULT_POPULATION["env"]

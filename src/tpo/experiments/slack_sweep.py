@@ -35,9 +35,8 @@ from tpo.atomic import write_atomic
 from tpo.envs import OBJECTIVES, grid_model, load_map
 from tpo.errors import TPOError
 from tpo.experiments.engine import Backend, Link, LocalBackend, Tracker, Unit, run_units
-from tpo.experiments.paper import CONTINUOUS_OBSERVATION, GRID_OBSERVATION
 from tpo.experiments.report import CSV_FIELDS, merge_records, record_rows, slack_table
-from tpo.experiments.runspec import ACTION_KINDS, DEFAULT_STEPS, DYNAMICS
+from tpo.experiments.runspec import ACTION_KINDS, DEFAULT_OBSERVATION, DEFAULT_STEPS, DYNAMICS
 from tpo.graph import ObjectiveGraph
 from tpo.locking import LOCK_FILE
 from tpo.tabular import VERDICTS, Judge, solve_lar
@@ -139,10 +138,8 @@ class SweepSpec:
 
     def learning(self) -> dict[str, Any]:
         """What the learned runs depend on beyond the problem."""
-        observation = (CONTINUOUS_OBSERVATION if self.dynamics == "continuous"
-                       else GRID_OBSERVATION)
         return {"seeds": self.seeds, "steps": self.steps, "slacks_per_unit": self.slacks_per_unit,
-                "config": self.config.to_dict(), "observation": observation}
+                "config": self.config.to_dict(), "observation": DEFAULT_OBSERVATION}
 
     def env(self) -> GridNav | ContinuousNav:
         """The training env: episodes start anywhere (evaluation: at the map's start)."""
@@ -150,8 +147,8 @@ class SweepSpec:
 
         if self.dynamics == "continuous":
             return ContinuousNav(load_map(self.map), action=self.action,
-                                 observation=CONTINUOUS_OBSERVATION, random_start=True)
-        return GridNav(load_map(self.map), observation=GRID_OBSERVATION, random_start=True)
+                                 observation=DEFAULT_OBSERVATION, random_start=True)
+        return GridNav(load_map(self.map), observation=DEFAULT_OBSERVATION, random_start=True)
 
     def xlabel(self) -> str:
         edges = self.graph().edges
