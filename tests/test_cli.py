@@ -4,6 +4,7 @@ import json
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -305,14 +306,14 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     categorical defaults; both take the continuous state's telescoping penalty and GAE's
     lambda, the grid not; a Gaussian keeps its own; a saved run keeps its own config."""
     from tpo.algo import TPO, TPOConfig
-    from tpo.algo.config import GAUSSIAN_DEFAULTS
+    from tpo.algo.config import POLICY_DEFAULTS
     from tpo.envs import ContinuousNav, load_map
     from tpo.experiments.runspec import RunSpec
 
     binned = TPOConfig(action_bins=5)
-    assert TPOConfig.defaults("discretized") == binned
-    gaussian = TPOConfig.defaults("gaussian")
-    assert gaussian == TPOConfig(**GAUSSIAN_DEFAULTS)
+    assert TPOConfig.from_profile("grid", "discretized") == binned
+    gaussian = TPOConfig.from_profile("grid", "gaussian")
+    assert gaussian == TPOConfig(**POLICY_DEFAULTS["gaussian"])
     assert (gaussian.ent_coef, gaussian.ent_coef_end, gaussian.learning_rate) == (0, 0, 3e-4)
     continuous = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
                   "dead_zone": 0.4, "gae_lambda": 0.98}
@@ -323,19 +324,26 @@ def test_a_velocity_robot_starts_from_the_discretized_defaults_and_flags_win():
     assert RunSpec.from_settings({}).config == TPOConfig()
     mine = RunSpec.from_settings({"dynamics": "continuous", "action_bins": 3}).config
     assert (mine.action_bins, mine.ent_coef) == (3, TPOConfig().ent_coef)
-    saved = RunSpec.from_settings({"dynamics": "continuous", **TPOConfig().to_dict()},
-                                  saved=True)
-    assert saved.config == TPOConfig()
-    # A saved config from before telescope meant the paper's penalty and advantage, in any space.
+    saved = RunSpec.from_settings({"dynamics": "continuous", "format": 8,
+                                   **TPOConfig().to_dict()}, saved=True)
+    assert saved.config == TPOConfig() and saved.profile == "continuous"
+    # A run's config.toml of format 7 (no format key) from before telescope meant the
+    # paper's penalty and advantage, in any space.
     old_robot = RunSpec.from_settings({"dynamics": "continuous"}, saved=True).config
     assert (old_robot.telescope, old_robot.advantage, old_robot.tie_critic,
             old_robot.dead_zone) == ("off", "penalized", "ancestors", 0.0)
     # ... and a telescope of true or false, written when it was a flag.
-    assert TPOConfig.from_dict({"telescope": True}).telescope == "all"
-    assert TPOConfig.from_dict({"telescope": False}).telescope == "off"
+    assert TPOConfig.from_saved({"telescope": True}, 7).telescope == "all"
+    assert TPOConfig.from_saved({"telescope": False}, 7).telescope == "off"
     # A saved config from before action_bins meant a Gaussian.
     old = {k: v for k, v in binned.to_dict().items() if k != "action_bins"}
-    assert TPOConfig.from_saved(old).action_bins == 0
+    assert TPOConfig.from_saved(old, 7).action_bins == 0
+    # A run names its profile(s); a saved run's config.toml keeps them.
+    paper = RunSpec.from_settings({"profile": "grid,paper"})
+    assert (paper.profile, paper.config.select) == ("grid,paper", False)
+    assert "profile = \"grid,paper\"" in paper.to_toml()
+    again = RunSpec.from_settings(tomllib.loads(paper.to_toml()), saved=True)
+    assert (again.config, again.profile) == (paper.config, paper.profile)
     navmap = load_map("small")
     assert TPO(ContinuousNav(navmap), "goal").config == robot
     assert TPO(ContinuousNav(navmap, action="heading"), "goal").config \

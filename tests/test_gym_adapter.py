@@ -195,7 +195,7 @@ class Unbounded(Slider):
 def test_a_box_without_bounds_takes_a_gaussian_and_cannot_be_discretized():
     assert TPO(Slider, "distance", objectives=["distance", "effort"]).config.action_bins == 5
     model = TPO(Unbounded, "distance", objectives=["distance", "effort"])
-    assert model.config == TPOConfig.defaults("gaussian")
+    assert model.config == TPOConfig.from_profile("grid", "gaussian")
     with pytest.raises(ConfigError, match="action_bins needs an action space of finite bounds"):
         TPO(Unbounded, "distance", objectives=["distance", "effort"],
             config=TPOConfig(action_bins=3)).learn(10**4)

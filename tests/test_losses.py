@@ -129,16 +129,6 @@ def test_penalized_form_is_gae_on_the_lagrangian_reward():
     assert np.allclose(targets, adv + V)
 
 
-def test_literal_form_moves_the_penalty_one_step_back():
-    # Eq. 10: delta_t - gamma beta C(s_{t+1}, a_{t+1}). The penalty of step 1 (C = 1) reaches
-    # step 0 as 0.5 * 2 * 1 = 1 and is absent from step 1's own advantage.
-    term = jnp.array([0.0, 0.0, 1.0])
-    adv, targets = lagrangian_advantages("literal", R, V, V_NEXT, jnp.array([0.0, 1.0, 0.0]),
-                                         2.0, term, term, 0.5, 0.5)
-    assert np.allclose(adv, [1.53125 - 1.0, 2.125, 1.5])
-    assert np.allclose(targets, [2.03125, 3.125, 3.0])  # raw returns
-
-
 def test_immediate_form_charges_the_penalty_to_its_own_action_only():
     # GAE(r) = (1.53125, 2.125, 1.5) as above; the penalty of step 1 (beta 2 x 1) comes off
     # step 1's advantage alone: step 0's is GAE's, not the penalized form's 1.03125.
@@ -178,7 +168,7 @@ def test_every_form_with_beta_0_is_gae():
     term = jnp.array([0.0, 0.0, 1.0])
     penalty = jnp.array([0.3, 1.0, 2.0])
     expected = gae(R, V, V_NEXT, term, term, 0.5, 0.5)
-    for form in ("penalized", "literal", "immediate", "traced"):
+    for form in ("penalized", "immediate", "traced"):
         got = lagrangian_advantages(form, R, V, V_NEXT, penalty, 0.0, term, term, 0.5, 0.5)
         np.testing.assert_array_equal(got, expected)
 

@@ -1,5 +1,5 @@
-"""The end of a run: every phase's final policy is kept, and the answer is chosen
-among them by the tie rule (tpo.algo.selection, Trainer.finish)."""
+"""The end of a run: every phase's final policy is kept, and the answer is selected
+among them by the tie rule (tpo.algo.selection)."""
 
 import jax
 import jax.numpy as jnp
@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from flax import serialization
 
-from tpo.algo import TPO
+from tpo.algo import TPO, selection
 from tpo.algo.config import TPOConfig
 from tpo.algo.evaluate import episode_returns
 from tpo.algo.persist import restore_state
-from tpo.algo.selection import choose, choose_member
-from tpo.algo.train import SELECT_EPISODES, Trainer
+from tpo.algo.selection import SELECT_EPISODES, select, select_member, select_phase
+from tpo.algo.train import Trainer
 from tpo.envs import OBJECTIVES, load_map
 from tpo.envs.grid import GridNav
 from tpo.graph import ObjectiveGraph
@@ -23,8 +23,8 @@ ORDER = [2, 0, 1]
 
 
 def pick(returns, penalty, penalty_tolerance=10.0):
-    return int(choose(jnp.array(returns, jnp.float32), jnp.array(penalty, jnp.float32), ORDER,
-                      penalty_tolerance))
+    return int(select_phase(jnp.array(returns, jnp.float32), jnp.array(penalty, jnp.float32), ORDER,
+                            penalty_tolerance))
 
 
 def test_an_indifferent_leaf_takes_the_root_s_policy():
@@ -58,12 +58,12 @@ def test_a_candidate_that_loses_a_zero_slack_parent_s_return_is_no_candidate():
     returns = [[82.6, -4.4, -100.0], [0.0, 0.0, -100.0], [0.0, 0.0, -100.0]]
     assert pick(returns, [4.4, 0.0, 0.0]) == 0  # the allowance alone admits it
     held = jnp.array([False, True, False])
-    assert int(choose(jnp.array(returns), jnp.array([4.4, 0.0, 0.0]), ORDER, 10.0,
-                      held)) == 2
+    assert int(select_phase(jnp.array(returns), jnp.array([4.4, 0.0, 0.0]), ORDER, 10.0,
+                            held)) == 2
     # Within the verdicts' tolerance of the leaf's avoid (0.5) it stays a candidate.
     returns[0][1] = -0.4
-    assert int(choose(jnp.array(returns), jnp.array([0.4, 0.0, 0.0]), ORDER, 10.0,
-                      held)) == 0
+    assert int(select_phase(jnp.array(returns), jnp.array([0.4, 0.0, 0.0]), ORDER, 10.0,
+                            held)) == 0
 
 
 def test_a_candidate_better_on_a_higher_held_objective_may_lose_a_lower_one():
@@ -72,10 +72,10 @@ def test_a_candidate_better_on_a_higher_held_objective_may_lose_a_lower_one():
     # own policy, worse on the avoid below it, is lexicographically the better.
     returns = jnp.array([[77.0, -9.0, -100.0], [74.0, 0.0, -100.0], [74.0, 0.0, -100.0]])
     both = jnp.array([True, True, False])
-    assert int(choose(returns, jnp.array([9.0, 0.0, 0.0]), ORDER, 10.0, both)) == 0
+    assert int(select_phase(returns, jnp.array([9.0, 0.0, 0.0]), ORDER, 10.0, both)) == 0
     # Tied on the monitor, the avoid decides: the leaf's own answers.
     tied = returns.at[0, 0].set(74.2)
-    assert int(choose(tied, jnp.array([9.0, 0.0, 0.0]), ORDER, 10.0, both)) == 2
+    assert int(select_phase(tied, jnp.array([9.0, 0.0, 0.0]), ORDER, 10.0, both)) == 2
 
 
 def test_a_phase_s_policy_that_the_leaf_beats_on_its_own_objective_is_no_candidate():
@@ -83,9 +83,9 @@ def test_a_phase_s_policy_that_the_leaf_beats_on_its_own_objective_is_no_candida
     # 17-step treasure 22.4, the leaf with the 19-step 23.7. Faster, but not the
     # treasure's optimum: the leaf's own answers.
     returns = jnp.array([[22.4, -17.0], [23.7, -19.0]])
-    assert int(choose(returns, jnp.zeros(2), [1, 0], 100.0)) == 1
-    assert int(choose(returns.at[0, 0].set(23.5), jnp.zeros(2), [1, 0],
-                      100.0)) == 0  # within 0.5 of the leaf's: it would answer
+    assert int(select_phase(returns, jnp.zeros(2), [1, 0], 100.0)) == 1
+    assert int(select_phase(returns.at[0, 0].set(23.5), jnp.zeros(2), [1, 0],
+                            100.0)) == 0  # within 0.5 of the leaf's: it would answer
 
 
 def test_a_reference_before_the_last_candidate():
@@ -95,14 +95,14 @@ def test_a_reference_before_the_last_candidate():
     returns = jnp.array([[0.0, 0.0, -86.6, 0.0], [-9.0, 77.0, -86.6, 77.0],
                          [0.0, 0.0, -86.6, 0.0], [0.0, 74.0, -86.6, 74.0]])
     order = [2, 0, 1]
-    assert int(choose(returns, jnp.zeros(4), order, 10.0, reference=2)) == 3
+    assert int(select_phase(returns, jnp.zeros(4), order, 10.0, reference=2)) == 3
     # Its penalty counts against the leaf's (12 over 0), not against its own: the
     # avoid's best then keeps the avoid phase's and the leaf's, tied: the leaf's.
     penalty = jnp.array([0.0, 0.0, 0.0, 12.0])
-    assert int(choose(returns, penalty, order, 10.0, reference=2)) == 2
-    assert int(choose(returns, penalty, order, 10.0)) == 3  # the last as the reference
+    assert int(select_phase(returns, penalty, order, 10.0, reference=2)) == 2
+    assert int(select_phase(returns, penalty, order, 10.0)) == 3  # the last as the reference
     # Tied on every objective: the reference answers, though a later one ties too.
-    assert int(choose(jnp.zeros((4, 4)), jnp.zeros(4), order, 10.0, reference=2)) == 2
+    assert int(select_phase(jnp.zeros((4, 4)), jnp.zeros(4), order, 10.0, reference=2)) == 2
 
 
 def test_a_leaf_that_lost_a_zero_slack_parent_s_best_does_not_hand_it_to_the_root():
@@ -116,19 +116,19 @@ def test_a_leaf_that_lost_a_zero_slack_parent_s_best_does_not_hand_it_to_the_roo
     held, order = jnp.array([False, True, False]), [2, 0, 1]
     edges = [(0, 1), (1, 2)]  # goal -> monitor, monitor -> avoid
     allowance = jnp.array([10000.0, 0.0])  # local slacks (100, 0) over 1 - gamma
-    assert int(choose(returns, jnp.zeros(3), order, 10.0, held)) == 0
-    assert int(choose(returns, jnp.zeros(3), order, 10.0, held, edges=edges,
-                      allowance=allowance)) == 1
+    assert int(select_phase(returns, jnp.zeros(3), order, 10.0, held)) == 0
+    assert int(select_phase(returns, jnp.zeros(3), order, 10.0, held, edges=edges,
+                            allowance=allowance)) == 1
     # A leaf within the tolerance of the monitor's best (2 %) keeps its own answer.
     kept = returns.at[2, 1].set(60.6)
-    assert int(choose(kept, jnp.zeros(3), order, 10.0, held, edges=edges,
-                      allowance=allowance)) == 2
+    assert int(select_phase(kept, jnp.zeros(3), order, 10.0, held, edges=edges,
+                            allowance=allowance)) == 2
     # No admissible candidate keeps the edges (the monitor's best is a policy whose
     # penalty excludes it): the rule stands aside, and the answer is as without it.
-    assert int(choose(returns, jnp.array([0.0, 30.0, 0.0]), order, 10.0, held,
-                      edges=edges, allowance=allowance)) == 0
+    assert int(select_phase(returns, jnp.array([0.0, 30.0, 0.0]), order, 10.0, held,
+                            edges=edges, allowance=allowance)) == 0
     with pytest.raises(ValueError, match="edges need their allowance"):
-        choose(returns, jnp.zeros(3), order, 10.0, held, edges=edges)
+        select_phase(returns, jnp.zeros(3), order, 10.0, held, edges=edges)
 
 
 def test_a_leaf_that_lost_a_parent_s_best_does_not_bar_that_objective_s_phase():
@@ -142,27 +142,28 @@ def test_a_leaf_that_lost_a_parent_s_best_does_not_bar_that_objective_s_phase():
     held, order = jnp.array([True, True, False]), [2, 0, 1]
     edges, allowance = [(0, 1), (1, 2)], jnp.zeros(2)
     penalty = jnp.array([1.2, 0.0, 30.0])
-    assert int(choose(returns, penalty, order, 10.0, held, edges=edges,
-                      allowance=allowance)) == 1
+    assert int(select_phase(returns, penalty, order, 10.0, held, edges=edges,
+                            allowance=allowance)) == 1
     # Without the edges the leaf's avoid stands: the avoid phase is no candidate.
-    assert int(choose(returns, penalty, order, 10.0, held)) == 0
+    assert int(select_phase(returns, penalty, order, 10.0, held)) == 0
     # A leaf that keeps the monitor's best bounds the avoid phase as before.
     kept = returns.at[2].set(jnp.array([79.18, -5.0, -98.21]))
-    assert int(choose(kept, penalty.at[2].set(0.0), order, 10.0, held, edges=edges,
-                      allowance=allowance)) == 2
+    assert int(select_phase(kept, penalty.at[2].set(0.0), order, 10.0, held, edges=edges,
+                            allowance=allowance)) == 2
 
 
 def test_a_run_s_pick_holds_the_graph_s_edges_at_their_start_allowance():
-    # Trainer.pick passes the graph's edges and each slack's start value to choose:
+    # A run's selection passes the graph's edges and each slack's start value to
+    # select_phase:
     # the same G>M>A (100, 0) candidates as above, on the grid (no training).
     graph = ObjectiveGraph.parse("G>M>A", [100, 0], objectives=OBJECTIVES)
     trainer = Trainer(GridNav(load_map("small")), graph, TPOConfig(num_envs=4, num_steps=16),
                       3 * 64)
     slack = trainer.slack_array()
-    assert trainer.edges == [(0, 1), (1, 2)]
-    np.testing.assert_allclose(trainer.allowance(slack), [10000.0, 0.0], rtol=1e-5)
+    assert selection.edges(trainer) == [(0, 1), (1, 2)]
+    np.testing.assert_allclose(selection.allowance(trainer, slack), [10000.0, 0.0], rtol=1e-5)
     returns = jnp.array([[-32.4, 0.0, -16.3], [-100.0, 61.7, -16.3], [-100.0, 0.0, -16.3]])
-    assert int(trainer.pick(slack, returns, jnp.zeros(3))) == 1
+    assert int(selection.selected(trainer, slack, returns, jnp.zeros(3))) == 1
 
 
 @pytest.fixture(scope="module")
@@ -179,7 +180,8 @@ def three_phases():
 def test_candidates_are_each_snapshot_s_greedy_returns_and_penalty(three_phases):
     env, trainer, state, actors = three_phases
     slack = trainer.slack_array()
-    returns, penalty = jax.jit(trainer.candidates, static_argnums=2)(state, slack, env)
+    returns, penalty = jax.jit(lambda st, sl: selection.candidates(trainer, st, sl, env))(
+        state, slack)
     keys = jax.random.split(jax.random.fold_in(state.key, 1), SELECT_EPISODES)
     columns = [OBJECTIVES.index(n) for n in ("monitor", "avoid", "goal")]
     for p, actor in enumerate(actors):
@@ -190,20 +192,20 @@ def test_candidates_are_each_snapshot_s_greedy_returns_and_penalty(three_phases)
     assert penalty.shape == (3,) and bool((penalty >= 0).all())
 
 
-def test_finish_answers_with_the_chosen_snapshot_once_and_for_all(three_phases):
+def test_select_answers_with_the_selected_snapshot_once_and_for_all(three_phases):
     env, trainer, state, actors = three_phases
     slack = trainer.slack_array()
-    finish = jax.jit(trainer.finish, static_argnums=2)
-    done = finish(state, slack, env)
+    finish = jax.jit(lambda st, sl: select(trainer, st, sl, env))
+    done = finish(state, slack)
     chosen = [p for p, a in enumerate(actors)
               if jax.tree.all(jax.tree.map(jnp.array_equal, a, done.params["actor"]))]
     assert len(chosen) == 1
-    again = finish(done, slack, env)
+    again = finish(done, slack)
     assert jax.tree.all(jax.tree.map(jnp.array_equal, again.params["actor"],
                                      done.params["actor"]))
     off = Trainer(env, trainer.problem.graph, TPOConfig(num_envs=4, num_steps=16, select=False),
                   3 * 64)
-    kept = off.finish(state, slack, env)
+    kept = select(off, state, slack, env)
     assert kept.params["actor"] is state.params["actor"]
 
 
@@ -214,10 +216,11 @@ def test_a_population_answers_with_the_member_and_snapshot_its_returns_pick(thre
     other = state.replace(snapshots=jax.tree.map(lambda x: x[::-1], state.snapshots),
                           update=state.update + 1)
     states = jax.tree.map(lambda *x: jnp.stack(x), state, other)
-    done = jax.jit(trainer.finish_population, static_argnums=2)(states, slack, env)
-    returns, penalty = jax.vmap(lambda s: trainer.candidates(s, slack, env))(states)
-    picks = jax.vmap(lambda r, p: trainer.pick(slack, r, p))(returns, penalty)
-    m = int(choose_member(returns, picks, [(0, 1), (1, 2)], slack / 0.01, ORDER))
+    done = jax.jit(lambda st, sl: select(trainer, st, sl, env))(states, slack)
+    returns, penalty = jax.vmap(lambda s: selection.candidates(trainer, s, slack, env))(states)
+    picks = jax.vmap(lambda r, p: selection.selected(trainer, slack, r, p))(returns,
+                                                                                  penalty)
+    m = int(select_member(returns, picks, [(0, 1), (1, 2)], slack / 0.01, ORDER))
     assert int(done.update) == m  # the chosen member's own state ...
     snapshot = jax.tree.map(lambda x: x[m, int(picks[m])], states.snapshots)
     assert jax.tree.all(jax.tree.map(jnp.array_equal, snapshot, done.params["actor"]))
@@ -270,24 +273,25 @@ def test_a_format_6_state_learned_the_first_design_on_the_whole_observation(thre
 
 
 def test_a_gymnasium_env_s_run_is_finished_on_the_host_alike():
-    """HostRunner.finish: the same scores from episodes stepped on the host."""
+    """select on a HostRunner: the same scores from episodes stepped on the host."""
     model = TPO("mo-gymnasium:deep-sea-treasure-v0", "treasure>time", slack=0.0,
                 objectives=["treasure", "time"],
                 config=TPOConfig(num_envs=4, num_steps=16)).learn(2 * 64 * 2)
     state, trainer, runner = model.state, model.trainer, model._run
     chosen = [p for p in range(2) if jax.tree.all(jax.tree.map(
         lambda s, a, p=p: jnp.array_equal(s[p], a), state.snapshots, state.params["actor"]))]
-    assert len(chosen) == 1  # the run ended by choosing a snapshot
-    acting = trainer.final_acting(state, trainer.slack_array())
+    assert len(chosen) == 1  # the run ended by selecting a snapshot
+    acting = trainer.acting(state, trainer.slack_array(), jnp.int32(trainer.problem.reference))
     ep = runner.greedy_episodes(acting, 6, seed=0)
     assert ep.obs.shape[0] == 6 and ep.obs.shape[1] >= int(ep.alive.sum(1).max())
-    returns, _ = jax.jit(trainer.score)(state, trainer.slack_array(), ep)
+    returns, _ = jax.jit(lambda *a: selection.score(trainer, *a))(state, trainer.slack_array(),
+                                                                   ep)
     mc = runner.monte_carlo(acting, 6, True, trainer.config.gamma, 0)["discounted"]
     # phases (treasure, time) are the env's reward columns (treasure, time)
     np.testing.assert_allclose(returns, mc.mean(0), rtol=1e-5, atol=1e-5)
 
 
-# choose_member: a population's answers, M>A>G at (100, 0) on held2 (numbers from a
+# select_member: a population's answers, M>A>G at (100, 0) on held2 (numbers from a
 # run: the goal phase's policy of member 0 crosses one wet cell, avoid -0.9).
 EDGES = [(0, 1), (1, 2)]  # monitor -> avoid, avoid -> goal
 MEMBERS = [[[76.1, -3.7, -86.6], [0.0, 0.0, -86.6], [0.0, -0.9, -20.6]],
@@ -295,7 +299,7 @@ MEMBERS = [[[76.1, -3.7, -86.6], [0.0, 0.0, -86.6], [0.0, -0.9, -20.6]],
 
 
 def member(returns, picks, allowance):
-    return int(choose_member(jnp.array(returns, jnp.float32), jnp.array(picks),
+    return int(select_member(jnp.array(returns, jnp.float32), jnp.array(picks),
                              EDGES, jnp.array(allowance, jnp.float32), ORDER))
 
 

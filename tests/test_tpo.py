@@ -209,7 +209,7 @@ def test_a_continuous_robot_s_population_answers_with_one_member():
     from tpo.envs import ContinuousNav, load_map
 
     env = ContinuousNav(load_map("small"), random_start=True)
-    config = TPOConfig.defaults("discretized", continuous=True, num_envs=8, num_steps=32)
+    config = TPOConfig.from_profile("continuous", "discretized", num_envs=8, num_steps=32)
     model = TPO(env, "M>A>G", slack=[100, 0], config=config, population=2).learn(8 * 32 * 6)
     assert model.finished and not model.stacked
     assert model.predict(np.zeros(env.obs_shape)).shape == (2,)  # a velocity

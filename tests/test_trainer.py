@@ -8,7 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tpo.algo import constraints
 from tpo.algo.config import ConfigError, TPOConfig
+from tpo.algo.constraints import trace_decay
+from tpo.algo.lagrangian import ancestral_advantages
 from tpo.algo.networks import ValueNorm, scale_output
 from tpo.algo.phases import Problem
 from tpo.algo.train import Rollout, Trainer
@@ -74,9 +77,8 @@ def test_later_phases_leave_earlier_critics_frozen(small, constraint):
 
 
 def test_completion_phases_follow_the_leaf_at_zero_slack():
-    low, high = np.full(3, -1.0), np.ones(3)
     chain = Problem.build(ObjectiveGraph.parse("M>A>G", [1, 2], objectives=OBJECTIVES),
-                          OBJECTIVES, TPOConfig(completion=True), low, high)
+                          OBJECTIVES, TPOConfig(completion=True))
     m, a, g = (OBJECTIVES.index(n) for n in ("monitor", "avoid", "goal"))
     assert chain.reward.tolist() == [m, a, g, m, a]  # then the leaf's ancestors, roots first
     assert chain.phase_names[3:] == ("monitor (completion)", "avoid (completion)")
@@ -87,20 +89,19 @@ def test_completion_phases_follow_the_leaf_at_zero_slack():
     assert chain.active.tolist() == [[0, 0, 0, 0], [1, 0, 0, 0], [1, 1, 0, 0],
                                      [1, 1, 1, 0], [1, 1, 1, 1]]
     fan = Problem.build(ObjectiveGraph.parse("A>G, M>G", objectives=OBJECTIVES),
-                        OBJECTIVES, TPOConfig(completion=True), low, high)
+                        OBJECTIVES, TPOConfig(completion=True))
     assert fan.reward.tolist() == [a, m, g, a, m]
     assert fan.active.tolist() == [[0, 0, 0, 0], [0, 0, 0, 0], [1, 1, 0, 0],
                                    [1, 1, 1, 0], [1, 1, 1, 1]]
     paper = Problem.build(ObjectiveGraph.parse("M>A>G", objectives=OBJECTIVES),
-                          OBJECTIVES, TPOConfig(), low, high)
+                          OBJECTIVES, TPOConfig())
     assert paper.reward.tolist() == [m, a, g] and paper.head.tolist() == [0, 1]
 
 
 def test_a_fan_learns_its_roots_completion_after_the_leaf():
-    low, high = np.full(3, -1.0), np.ones(3)
     a, m, g = (OBJECTIVES.index(n) for n in ("avoid", "monitor", "goal"))
     fan = Problem.build(ObjectiveGraph.parse("A>G, M>G", [3, 4], objectives=OBJECTIVES),
-                        OBJECTIVES, TPOConfig(), low, high)
+                        OBJECTIVES, TPOConfig())
     assert fan.phase_names == ("avoid", "monitor", "goal", "monitor (under avoid)")
     assert fan.reward.tolist() == [a, m, g, m]
     # constraints: edges A->G (head 0) and M->G (head 1), then avoid (head 0) at zero
@@ -112,8 +113,7 @@ def test_a_fan_learns_its_roots_completion_after_the_leaf():
     # three roots: each later one under the phase that holds the roots before it
     three = Problem.build(ObjectiveGraph.parse("goal>avoid, monitor>avoid, x>avoid",
                                                objectives=("goal", "avoid", "monitor", "x")),
-                          ("goal", "avoid", "monitor", "x"), TPOConfig(), np.full(4, -1.0),
-                          np.ones(4))
+                          ("goal", "avoid", "monitor", "x"), TPOConfig())
     assert three.phase_names[4:] == ("monitor (under goal)", "x (under goal+monitor)")
     assert three.head.tolist()[3:] == [0, 4] and three.active[5].tolist() == [0, 0, 0, 1, 1]
     assert three.start.tolist()[4:] == [1, 2] and three.reference == 3
@@ -121,12 +121,12 @@ def test_a_fan_learns_its_roots_completion_after_the_leaf():
     # config saved before it (a model of 3 phases loads as one)
     for config in (TPOConfig(select=False), TPOConfig(completion=True),
                    TPOConfig(roots_completion=False),
-                   TPOConfig.from_saved({"select": True})):
+                   TPOConfig.from_saved({"select": True}, 7)):
         assert "(under" not in " ".join(Problem.build(
-            ObjectiveGraph.parse("A>G, M>G", objectives=OBJECTIVES), OBJECTIVES, config,
-            low, high).phase_names)
+            ObjectiveGraph.parse("A>G, M>G", objectives=OBJECTIVES), OBJECTIVES,
+            config).phase_names)
     chain = Problem.build(ObjectiveGraph.parse("M>A>G", objectives=OBJECTIVES), OBJECTIVES,
-                          TPOConfig(), low, high)
+                          TPOConfig())
     assert chain.n_phases == 3 and chain.reference == 2 and chain.start.tolist() == [-1, 0, 1]
 
 
@@ -143,7 +143,8 @@ def test_the_roots_completion_starts_from_its_roots_policy_and_the_leaf_answers(
     assert all(leaves[0::2]) and not all(leaves[1::2])  # monitor's policy, not the leaf's
     state, _ = run(state, trainer.slack_array(), trainer.num_updates - int(trainer.phase_start[3]))
     assert int(trainer.acting(state, trainer.slack_array()).phase) == 2  # the leaf's constraints
-    assert int(trainer.final_acting(state, trainer.slack_array()).phase) == 2
+    assert int(trainer.acting(state, trainer.slack_array(),
+                              jnp.int32(trainer.problem.reference)).phase) == 2
 
 
 def test_restricted_rollouts_act_within_the_admissible_actions(small):
@@ -152,7 +153,7 @@ def test_restricted_rollouts_act_within_the_admissible_actions(small):
     config = TPOConfig(num_envs=8, num_steps=64, constraint="restriction", completion=True,
                        explore=0.25)
     trainer = Trainer(train_env, graph, config, 3 * config.batch_size * 3)
-    assert trainer.restricts and trainer.problem.n_phases == 3
+    assert trainer.form.name == "restriction" and trainer.problem.n_phases == 3
     state = trainer.init(jax.random.key(0))
     state, _ = jax.jit(trainer.run, static_argnums=2)(state, trainer.slack_array(), 4)
     _, rollout, _ = trainer.collect(state, trainer.slack_array())
@@ -206,7 +207,8 @@ def test_the_penalty_counts_from_the_slack_less_the_margin(small, slack, gap, pe
     is ``max(0, gap - (slack - min(0.3, slack / 2)))``."""
     train_env, _ = small
     graph = ObjectiveGraph.parse("A>G", slack, objectives=OBJECTIVES)
-    assert Trainer(train_env, graph, TPOConfig(), 10**6).margin.tolist() == pytest.approx([0.3])
+    assert Trainer(train_env, graph, TPOConfig(), 10**6).terms.margin.tolist() == pytest.approx(
+        [0.3])
     assert goal_phase_step(train_env, slack, -gap).penalty == pytest.approx(penalty, abs=1e-4)
 
 
@@ -243,7 +245,7 @@ def test_the_dead_zone_is_a_telescoping_costs_alone(small, dag, telescope, zones
     train_env, _ = small
     graph = ObjectiveGraph.parse(dag, 0.0, objectives=OBJECTIVES)
     config = TPOConfig(dead_zone=0.5, telescope=telescope)
-    assert Trainer(train_env, graph, config, 10**6).dead_zone.tolist() == zones
+    assert Trainer(train_env, graph, config, 10**6).terms.dead_zone.tolist() == zones
 
 
 @pytest.mark.parametrize(("dag", "telescoped", "loose"), [
@@ -255,14 +257,14 @@ def test_telescope_roots_telescopes_the_roots_constraints_only(small, dag, teles
     root telescopes; the others are rectified from the tolerance, as the completion's."""
     train_env, _ = small
     graph = ObjectiveGraph.parse(dag, 0.0, objectives=OBJECTIVES)
-    trainer = Trainer(train_env, graph, TPOConfig(), 10**6)
+    trainer = Trainer(train_env, graph, TPOConfig(), 10**6).terms
     assert (trainer.telescoped.tolist(), trainer.loose.tolist()) == (telescoped, loose)
-    done = Trainer(train_env, graph, TPOConfig(completion=True), 10**6)
+    done = Trainer(train_env, graph, TPOConfig(completion=True), 10**6).terms
     edges = len(graph.edges)  # no roots' completion beside the completion phases
     assert done.telescoped.tolist() == telescoped[:edges] + [False] * 2  # the completion's
     assert done.loose.tolist() == loose[:edges] + [True] * 2
     for mode, flag in (("off", False), ("all", True)):
-        every = Trainer(train_env, graph, TPOConfig(telescope=mode), 10**6)
+        every = Trainer(train_env, graph, TPOConfig(telescope=mode), 10**6).terms
         assert every.telescoped.tolist() == [flag] * len(telescoped) and not every.loose.any()
 
 
@@ -272,16 +274,18 @@ def test_a_loose_zero_slack_constraint_counts_from_the_tolerance(small):
     train_env, _ = small
     graph = ObjectiveGraph.parse("M>A>G", 0.0, objectives=OBJECTIVES)
     trainer = Trainer(train_env, graph, TPOConfig(), 10**6)
-    assert trainer.tolerance.tolist() == pytest.approx([0.4, 0.4])  # M -> A, A -> G
+    assert trainer.terms.tolerance.tolist() == pytest.approx([0.4, 0.4])  # M -> A, A -> G
     # Terminal transitions with zero values: each phase's one-step advantage is its reward.
     reward = np.zeros((3, len(OBJECTIVES)), np.float32)
     reward[:, OBJECTIVES.index("avoid")] = [-1.0, -0.3, 0.2]
     reward[:, OBJECTIVES.index("monitor")] = [0.0, 0.0, 0.5]
 
     def penalty(state):
-        return trainer.constraint_terms(state, trainer.slack_array(), jnp.zeros((3, 3)),
-                                        jnp.zeros((3, 3)), jnp.asarray(reward), jnp.ones(3),
-                                        jnp.int32(2))[-1]
+        terms, zeros = trainer.terms, jnp.zeros((3, 3))
+        advantages = ancestral_advantages(jnp.asarray(reward)[:, terms.reward], zeros, zeros,
+                                          jnp.ones(3), 0.99)
+        return constraints.penalty(terms, advantages, trainer.slack_array(), jnp.int32(2),
+                                   trainer.loose_tolerance(state))
 
     state = trainer.init(jax.random.key(0))
     # avoid: max(0, 1 - 0.4), max(0, 0.3 - 0.4), 0; monitor (telescoped): 0, 0, -0.5
@@ -295,20 +299,8 @@ def test_a_loose_zero_slack_constraint_counts_from_the_tolerance(small):
     np.testing.assert_allclose(trainer.loose_tolerance(narrow), [0.02, 0.02], atol=1e-6)
     np.testing.assert_allclose(penalty(narrow), [0.98, 0.28, -0.5], atol=1e-6)
     # and traces the penalty by gamma alone
-    assert float(trainer.penalty_trace(second)) == pytest.approx(0.99)
-    assert float(trainer.penalty_trace(state)) == pytest.approx(0.99 * 0.95)
-
-
-@pytest.mark.parametrize(("update", "scale"), [(10, 0.0), (12, 0.4), (15, 1.0), (19, 1.0)])
-def test_the_multiplier_rises_over_the_warmup(small, update, scale):
-    """``beta_warmup = 0.5`` with phases of 10 updates: a goal-phase transition whose
-    penalty is 0.25 (A>G at slack 0) loses ``beta * scale * 0.25`` of advantage, the
-    scale rising from 0 at the phase's first update to 1 at its sixth."""
-    train_env, _ = small
-    base = goal_phase_step(train_env, 0.0, -0.25, 20, update)
-    warm = goal_phase_step(train_env, 0.0, -0.25, 20, update, beta_warmup=0.5)
-    assert base.penalty == pytest.approx(0.25, abs=1e-4)
-    assert warm.advantage - base.advantage == pytest.approx(10.0 * (1 - scale) * 0.25, abs=1e-4)
+    assert float(trace_decay(trainer.terms, second.design)) == pytest.approx(0.99)
+    assert float(trace_decay(trainer.terms, state.design)) == pytest.approx(0.99 * 0.95)
 
 
 @pytest.mark.parametrize("dag, expected", [
@@ -322,11 +314,9 @@ def test_the_multiplier_rises_over_the_warmup(small, update, scale):
 def test_tie_break_weighs_the_leaf_s_ancestors_roots_first(small, dag, expected):
     train_env, _ = small
     graph = ObjectiveGraph.parse(dag, objectives=OBJECTIVES)
-    problem = Problem.build(graph, OBJECTIVES, TPOConfig(), train_env.reward_low,
-                            train_env.reward_high)
-    np.testing.assert_allclose(problem.tie, expected, rtol=1e-6)
-    off = Problem.build(graph, OBJECTIVES, TPOConfig(tie_break=0.0), train_env.reward_low,
-                        train_env.reward_high)
+    terms = Trainer(train_env, graph, TPOConfig(), 10**6).terms
+    np.testing.assert_allclose(terms.tie, expected, rtol=1e-6)
+    off = Trainer(train_env, graph, TPOConfig(tie_break=0.0), 10**6).terms
     assert not off.tie.any()
 
 
@@ -401,10 +391,6 @@ def test_schedules_restart_with_every_phase(small):
     np.testing.assert_allclose(ent, [0.1, 0.06, 0.1, 0.06, 0.1, 0.06], rtol=1e-6)
     lr = [float(trainer.learning_rate(u)) for u in (0, 5, 10, 30)]
     np.testing.assert_allclose(lr, [1e-3, 5e-4, 1e-3, 5e-4], rtol=1e-6)
-    assert {float(trainer.beta_scale(u)) for u in range(40)} == {1.0}  # no warmup
-    warm = Trainer(train_env, graph, dataclasses.replace(config, beta_warmup=0.25), 4 * 8 * 40)
-    scale = [float(warm.beta_scale(u)) for u in (0, 1, 2, 5, 10, 11, 20, 22, 25, 39)]
-    np.testing.assert_allclose(scale, [0, 0.5, 1, 1, 0, 0.5, 0, 0.4, 1, 1], rtol=1e-6)
 
 
 @pytest.mark.parametrize(
@@ -416,7 +402,8 @@ def test_schedules_restart_with_every_phase(small):
         ({"learning_rate": -1.0}, "learning_rate must be a finite number > 0"),
         ({"gamma": 1.0}, "gamma must be in [0, 1)"),
         ({"beta": -2.0}, "beta must be a finite number >= 0"),
-        ({"advantage": "eq10"}, "advantage must be one of penalized, literal, immediate"),
+        ({"advantage": "eq10"}, "advantage must be one of traced, immediate, penalized"),
+        ({"advantage": "literal"}, "advantage must be one of traced, immediate, penalized"),
         ({"telescope": "roots only"}, "telescope must be one of off, roots, all, got "),
         ({"telescope": 1}, "telescope must be one of off, roots, all, got 1"),
         ({"hidden": (64, 0)}, "hidden must be 1 to 16 layer widths from 1 to 4096"),
@@ -424,8 +411,8 @@ def test_schedules_restart_with_every_phase(small):
         ({"anneal_lr": 1}, "anneal_lr must be true or false"),
         ({"tie_break": 1.0}, "tie_break must be in [0, 1), got 1.0"),
         ({"tie_break": -0.1}, "tie_break must be a finite number >= 0"),
-        ({"beta_warmup": 1.5}, "beta_warmup must be in [0, 1], got 1.5"),
-        ({"beta_warmup": float("nan")}, "beta_warmup must be a finite number >= 0"),
+        ({"select_penalty": -1.0}, "select_penalty must be a finite number >= 0"),
+        ({"second_tolerance": float("inf")}, "second_tolerance must be a finite number >= 0"),
         ({"action_bins": 1}, "action_bins must be 0 (Gaussian) or an integer from 2 to 256"),
         ({"action_bins": True}, "action_bins must be 0 (Gaussian) or an integer"),
     ],
@@ -441,8 +428,32 @@ def test_config_round_trips_through_toml_text():
     assert TPOConfig.from_toml(config.to_toml()) == config
     with pytest.raises(ConfigError, match="unknown config key"):
         TPOConfig.from_dict({"lr": 1.0})
-    with pytest.raises(ConfigError, match=r"clip_value, critic_refit were removed in tpo 0\.2"):
-        TPOConfig.from_dict({"critic_refit": 0.1, "clip_value": True})
+    with pytest.raises(ConfigError, match="unknown config key"):
+        TPOConfig.from_dict({"beta_warmup": 0.0})  # dropped in format 8
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    ({"critic_refit": 0.1}, "config key critic_refit was removed in tpo 0.2"),
+    ({"beta_warmup": 0.2}, "this config sets beta_warmup, which tpo no longer has"),
+    ({"advantage": "literal"}, 'this config sets advantage = "literal"')])
+def test_a_format_7_config_reads_as_it_meant_or_names_its_dropped_switch(data, message):
+    old = TPOConfig.from_saved({"beta_warmup": 0.0, "telescope": True}, 7)
+    assert (old.telescope, old.margin, old.select, old.advantage) == ("all", 0.0, False,
+                                                                      "penalized")
+    assert TPOConfig.from_saved({}, 7).mixed_population is False
+    with pytest.raises(ConfigError, match=message):
+        TPOConfig.from_saved(data, 7)
+
+
+def test_profiles_apply_in_order_under_the_values_given():
+    assert TPOConfig.from_profile("grid") == TPOConfig()
+    both = TPOConfig.from_profile("continuous,paper", "discretized", num_envs=8)
+    assert (both.telescope, both.advantage, both.tie_critic, both.gae_lambda) == (
+        "off", "penalized", "leaf", 0.98)  # paper's over continuous's
+    assert (both.action_bins, both.num_envs, both.select) == (5, 8, False)
+    assert TPOConfig.from_profile(["restriction"]).constraint == "restriction"
+    with pytest.raises(ConfigError, match="unknown profile 'fast': choose from grid, "):
+        TPOConfig.from_profile("grid,fast")
 
 
 def test_softened_warm_start_keeps_greedy_actions_and_raises_entropy(small):

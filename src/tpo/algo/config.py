@@ -1,10 +1,13 @@
-"""Hyperparameters of TPO (and of plain PPO, its one-objective case)."""
+"""Hyperparameters of TPO (and of plain PPO, its one-objective case), in three
+groups (:data:`GROUPS`), and the named profiles that set them (:data:`PROFILES`;
+docs/config.md lists every field with its reason)."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -12,50 +15,43 @@ import tomli_w
 
 from tpo.errors import TPOError
 
-ADVANTAGE_FORMS = ("penalized", "literal", "immediate", "traced")
+ADVANTAGE_FORMS = ("traced", "immediate", "penalized")
 TELESCOPES = ("off", "roots", "all")
-CONSTRAINTS = ("restriction", "penalty")
+CONSTRAINTS = ("penalty", "restriction")
 TIE_CRITICS = ("ancestors", "leaf")
-REMOVED = frozenset({"critic_refit", "reset_actor", "clip_value"})  # options of tpo 0.1
-#: fields added since tpo 0.2 (or whose default changed), and the value a config
-#: written without them meant: a saved model (or a run's config.toml) without the key
-#: was trained without the feature
-ADDED = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
-         "beta_warmup": 0.0, "telescope": "off", "advantage": "penalized",
-         "mixed_population": False, "roots_completion": False, "dead_zone": 0.0}
+#: the format of a config that tpo writes (``model.json``, a run's ``config.toml``):
+#: 8 has the groups and profiles; a config of format 7 or before is read by
+#: :func:`_from_format_7`
+FORMAT = 8
 
-
-#: the defaults of a Gaussian (continuous-action) policy that differ from a categorical
-#: one's: no entropy bonus (a Gaussian's entropy grows without bound with its standard
-#: deviation, so the bonus sized for a few categorical actions keeps the robot's moves
-#: short and noisy; CleanRL's and SB3's continuous default) and Adam's step 3e-4;
-#: measured in docs/notes/tpo-learning.md (sessions 9, 11 and 12)
-GAUSSIAN_DEFAULTS = {"ent_coef": 0.0, "ent_coef_end": 0.0, "learning_rate": 3e-4}
-#: the defaults of each kind of policy (:meth:`TPOConfig.defaults`): a discretized
-#: continuous action has 5 values per dimension (the velocity robot's 16 full-speed
-#: directions; 3 give 8, whose paths are up to 8 % longer) and a categorical's other
-#: defaults (docs/notes/tpo-learning.md, sessions 13 and 16)
-POLICY_DEFAULTS = {"categorical": {}, "gaussian": GAUSSIAN_DEFAULTS,
-                   "discretized": {"action_bins": 5}}
-
-#: what a learner in a continuous state space (the continuous navigation robot) sets
-#: beside its policy's defaults: the telescoping penalty at zero slack, whose critic
-#: errors cancel along a path, charged to the violating action alone, which keeps an
-#: infeasible state's relaxation per state as LAR's, and the tie-break valued by the
-#: leaf's own critic, which finds the leaf's way to an ancestor's reward that the
-#: ancestor's own path reached through the leaf's forbidden region
-#: (docs/notes/tpo-learning.md, sessions 19 to 21), and a dead zone of 0.4 of the
-#: parent's reward range on the telescoping penalty, so that the dips a stochastic
-#: root's critic has at doorways do not stop the phases under it (session 31), narrower
-#: than one step onto the rug, which half the range let through free (session 33), and
-#: GAE's lambda 0.98: the robot takes two steps a cell (speed 0.5), so 0.98 per step is
-#: 0.96 per cell, near the grid's 0.95 per cell; the monitor phases of `G>M>A` at
-#: (100, 0) and `A>M>G` at (0, 0) find the study and the hallway on more seeds (17 of 20
-#: against 11 of 20, and 8 of 10 against 6 of 10, on part of their budget), Figure 3's
-#: goal under a zero-slack avoid root ends short of its 5 % line on more (4 of 10
-#: against 2 of 10: session 37)
-CONTINUOUS_DEFAULTS = {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
-                       "dead_zone": 0.4, "gae_lambda": 0.98}
+#: the named learner profiles, each the fields it sets over :class:`TPOConfig`'s
+#: defaults; a run names one or several (``tpo train --profile continuous,paper``),
+#: applied in order
+PROFILES: dict[str, dict[str, Any]] = {
+    "grid": {},
+    "continuous": {"telescope": "all", "advantage": "immediate", "tie_critic": "leaf",
+                   "dead_zone": 0.4, "gae_lambda": 0.98},
+    "penalty": {"constraint": "penalty"},
+    "restriction": {"constraint": "restriction"},
+    "paper": {"constraint": "penalty", "advantage": "penalized", "telescope": "off",
+              "margin": 0.0, "tie_break": 0.0, "select": False},
+}
+#: what each profile is for, one line each (``tpo train --help``)
+PROFILE_HELP = {
+    "grid": "the defaults: tuned on the navigation grids, for any discrete env",
+    "continuous": "a continuous state space (the navigation robot)",
+    "penalty": "the constraints as the paper's Lagrangian penalty (the default form)",
+    "restriction": "the constraints as LAR's admissible actions (discrete actions)",
+    "paper": "the paper's TPO as printed: Algorithm 1 with Eq. 10, no added terms",
+}
+#: the defaults of a policy over each kind of action space, applied before a profile:
+#: a Gaussian policy has no entropy bonus (its entropy grows without bound with its
+#: standard deviation) and Adam's step 3e-4, CleanRL's and SB3's continuous default;
+#: a discretized one 5 values per dimension (docs/config.md)
+POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
+    "categorical": {},
+    "gaussian": {"ent_coef": 0.0, "ent_coef_end": 0.0, "learning_rate": 3e-4},
+    "discretized": {"action_bins": 5}}
 
 MAX_WIDTH = 4096  # widest hidden layer: 4096 x 4096 weights are 64 MB per layer
 MAX_BINS = 256  # values per dimension of a discretized continuous action
@@ -68,11 +64,12 @@ class ConfigError(TPOError):
 
 @dataclass(frozen=True)
 class TPOConfig:
-    """Hyperparameters of TPO (and of plain PPO, its one-objective case). Defaults
-    are tuned for the navigation grids on 2 CPU cores (a Gaussian policy's differ:
-    :meth:`defaults`); every field is a ``tpo train`` flag (``--num-envs 32``) and a
-    ``config.toml`` key."""
+    """Hyperparameters of TPO (and of plain PPO, its one-objective case): PPO's, the
+    TMDP's, and the learner's mechanisms (:data:`GROUPS`). The defaults are the
+    ``grid`` profile's; :meth:`from_profile` applies another. Every field is a
+    ``tpo train`` flag (``--num-envs 32``) and a ``config.toml`` key."""
 
+    # -- PPO
     num_envs: int = 16
     """parallel environments; an update sees num_envs * num_steps transitions"""
     num_steps: int = 128
@@ -103,103 +100,61 @@ class TPOConfig:
     """hidden layer widths of the actor and of each critic"""
     activation: str = field(default="tanh", metadata={"choices": ("tanh", "relu")})
     """activation of the hidden layers: tanh or relu"""
-    constraint: str = field(default="penalty", metadata={"choices": CONSTRAINTS})
-    """how a phase keeps its ancestors' slacks: penalty (the paper's Algorithm 1, the
-    Lagrangian penalty; always used for continuous actions) or restriction (it samples
-    only the actions that the frozen ancestral critics admit; discrete actions); see
-    docs/design.md §5"""
-    completion: bool = False
-    """after the leaf, one phase per ancestor (roots first) that keeps the leaf's value
-    and the earlier completion phases' at zero slack: the tie rule, learned"""
-    tolerance: float = 0.2
-    """restriction: an action is admissible when its violation of an edge is at most
-    the slack plus this share of the parent objective's one-step reward range; the
-    penalty form allows the completion constraints (zero slack) the same tolerance"""
-    margin: float = 0.15
-    """penalty: a constraint is penalised from its slack less this share of the parent
-    objective's one-step reward range (at most half the slack): the learned critics
-    cannot tell an action that LAR barely admits from one it excludes, and the
-    margin keeps the policy on the safe side (docs/notes/tpo-learning.md)"""
-    tie_break: float = 0.1
-    """the leaf's policy also weighs its ancestors' returns, roots first: the j-th
-    ancestor in topological order by tie_break ** (j + 1) (in units of reward range;
-    each step's share at most tie_break of the leaf's reward range), so where the
-    leaf is indifferent its policy follows its ancestors, as the tie rule's
-    completion does (docs/design.md §2); 0 turns it off"""
-    tie_critic: str = field(default="ancestors", metadata={"choices": TIE_CRITICS})
-    """which critic values the ancestors' returns in the tie-break: ancestors (each
-    ancestor's one-step advantages against its frozen critic, which values the
-    ancestor's own phase's policy; each step's share bounded) or leaf (the ancestors'
-    rewards, with the same weights, join the leaf's reward, so that the leaf's critic
-    values them under the leaf's policy, and a completion phase keeps that weighted
-    return); docs/tpo-algorithm.md"""
-    select: bool = True
-    """end the run by choosing among the phases' final policies by their greedy Monte
-    Carlo returns: the leaf's objective first, then its ancestors roots first, among
-    the policies the leaf's constraint checks admit (the tie rule of docs/design.md
-    §2 applied to the policies the run has); false keeps the leaf's own policy"""
-    roots_completion: bool = True
-    """with select and without completion, on a graph of several roots (a fan): after
-    the leaf, a phase for every root after the first that learns it under the earlier
-    roots at zero slack, from its root's own policy — one more candidate for the
-    answer, the tie rule's where the leaf is indifferent, which no objective's own
-    phase learns there (tpo.algo.phases.Problem; docs/design.md §5)"""
-    explore: float = 0.1
-    """restriction: share of rollout steps that take a uniform random action instead of
-    the policy's; they teach the critics' advantages every action and are left out of
-    the policy's loss and the value targets"""
-    beta: float | str = field(default=10.0, metadata={"metavar": "NUMBER|auto"})
-    """penalty: Lagrange multiplier of every phase, or "auto": Prop. 2's bound for a
-    violation of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
-    telescope: str = field(default="roots", metadata={"choices": TELESCOPES})
-    """penalty: which constraints at zero slack charge the parent's one-step advantage
-    itself, -A_w, not max(0, -A_w): the same with the parent's optimal critic (where
-    A_w <= 0), but along a path the critic's errors then telescope (they sum to its
-    errors at the path's ends) instead of each negative one being charged. off (the
-    paper's penalty), all, or roots: those whose parent is a root objective, whose
-    positive advantages can only be the critic's errors; a parent with constraints of
-    its own gains where it breaks them, so its zero-slack constraints stay rectified,
-    counted from the tolerance (docs/notes/tpo-learning.md, sessions 19 and 24)"""
-    dead_zone: float = 0.0
-    """penalty: a constraint that telescopes at zero slack, on a parent that is a cost
-    (its best one-step reward is 0, as avoid's), charges the parent's one-step advantage
-    only beyond this share of the parent's one-step reward range, either way
-    (soft-thresholded): the dips a cost's critic learns where its own stochastic policy
-    pays (a doorway, where it bumps), which its optimum (to pay nothing) has not, then
-    charge nothing; a parent that rewards progress keeps every step's cost, standing
-    still's included. The price: a violation no larger than the zone charges nothing
-    either, so it must stay below a cost's one-step reward (on avoid, range 2, a share
-    of 0.5 let a step onto the rug from its edge, where an accurate critic dips by 1,
-    through free; docs/notes/tpo-learning.md, sessions 31 and 33)"""
-    beta_warmup: float = 0.0
-    """penalty: share of every phase over which the multiplier rises linearly from 0
-    to beta: a phase then explores before its constraints bind, which helps a child
-    whose reward lies where its zero-slack parent never goes and costs a child that
-    must keep its parent's path (docs/tpo-algorithm.md, "The multiplier beta")"""
-    advantage: str = field(default="traced", metadata={"choices": ADVANTAGE_FORMS})
-    """traced (GAE on the reward, less the penalties' own GAE-weighted sum; the critics
-    value the objectives' rewards), penalized (GAE on the Lagrangian reward, the
-    critics value it), literal (Eq. 10 as printed) or immediate (GAE on the reward,
-    each step's penalty on its own action only); see docs/tpo-algorithm.md"""
-    phase_fractions: tuple[float, ...] | None = field(default=None)
-    """share of the timesteps of each phase: the objectives in topological order, then
-    the completion phases or the roots' completion (TPO.phases; default: equal)"""
     action_bins: int = 0
     """a continuous (Box) action's policy: 0 for a diagonal Gaussian, K >= 2 for a
-    factorised categorical over K evenly spaced values of each dimension's bounds
-    (Tang & Agrawal 2020; the velocity robot's default is 5: docs/notes/tpo-learning.md,
-    sessions 13 and 16); no effect on discrete actions"""
+    factorised categorical over K evenly spaced values of each dimension"""
+    # -- TMDP
+    constraint: str = field(default="penalty", metadata={"choices": CONSTRAINTS})
+    """how a phase keeps its ancestors' slacks: penalty (the paper's Lagrangian; any
+    action space) or restriction (only LAR's admissible actions; discrete actions)"""
+    beta: float | str = field(default=10.0, metadata={"metavar": "NUMBER|auto"})
+    """the penalty's Lagrange multiplier, or "auto": Prop. 2's bound for a violation
+    of one reward unit, max(|r_lo|, |r_hi|, r_hi - r_lo) / (1 - gamma)"""
+    completion: bool = False
+    """after the leaf, one phase per ancestor (roots first) that keeps the earlier
+    values at zero slack: the tie rule, learned"""
+    phase_fractions: tuple[float, ...] | None = field(default=None)
+    """share of the timesteps of each phase (default: equal)"""
+    # -- the learner's mechanisms
+    select: bool = True
+    """end the run by selecting among the phases' final policies by LAR's tie rule on
+    their greedy returns; false keeps the leaf's own policy"""
+    select_penalty: float = 5.0
+    """a candidate's penalty may exceed the leaf policy's by this many one-step reward
+    ranges of the constrained parents (the learned critics' noise)"""
+    roots_completion: bool = True
+    """with select, on a graph of several roots: a phase per later root that learns
+    it under the earlier roots at zero slack, one more candidate"""
+    tolerance: float = 0.2
+    """a zero-slack constraint that is loose (restriction: every one) is kept within
+    this share of the parent's one-step reward range"""
+    margin: float = 0.15
+    """penalty: a constraint charges from its slack less this share of the parent's
+    one-step reward range (at most half the slack)"""
+    telescope: str = field(default="roots", metadata={"choices": TELESCOPES})
+    """penalty: which zero-slack constraints charge -A_w itself, not max(0, -A_w):
+    off, roots (those on a root parent) or all"""
+    dead_zone: float = 0.0
+    """penalty: a telescoped cost's advantage charges only beyond this share of its
+    one-step reward range"""
+    advantage: str = field(default="traced", metadata={"choices": ADVANTAGE_FORMS})
+    """the penalty in the advantage: traced (summed over GAE's horizon), immediate
+    (on its own action) or penalized (GAE on the Lagrangian reward)"""
+    tie_break: float = 0.1
+    """the leaf also weighs its ancestors' returns, the j-th by tie_break ** (j + 1)
+    in units of reward range; 0 turns it off"""
+    tie_critic: str = field(default="ancestors", metadata={"choices": TIE_CRITICS})
+    """who values the tie-break: the ancestors' frozen critics, or the leaf's own"""
+    explore: float = 0.1
+    """restriction: share of rollout steps that take a uniform random action"""
     carry_temperature: float = 5.0
-    """the policy carries over from phase to phase with its logits divided by this
-    temperature (1 = unchanged; measured in docs/notes/tpo-learning.md)"""
+    """the policy carries over from phase to phase with its logits divided by this"""
     mixed_population: bool = True
-    """a population's members differ, so they do not all fail alike: the odd ones learn
-    a second design (penalty form: a zero-slack constraint that does not telescope is
-    counted from 0.1 of its parent head's value spread, at least 0.02, instead of
-    tolerance, and the penalty is traced by gamma alone), and each pair of members
-    sees the next part of the observation that the env offers alone (the grid's
-    free-cell one-hot, then its factored numbers); false: every member alike
-    (docs/design.md §5, docs/notes/tpo-learning.md)"""
+    """a population's members differ: the odd ones learn a second design, each pair
+    sees another part of the observation"""
+    second_tolerance: float = 0.1
+    """a population's second design: a loose constraint's tolerance as a share of its
+    parent head's value spread (at least 0.02)"""
 
     def __post_init__(self) -> None:
         for name, most in (("num_envs", 2**16), ("num_steps", 2**20), ("update_epochs", 1000),
@@ -235,9 +190,6 @@ class TPOConfig:
             raise ConfigError(f'beta must be a finite number >= 0 or "auto", got '
                               f"{self.beta!r}")
         _positive("carry_temperature", self.carry_temperature)
-        _nonnegative("beta_warmup", self.beta_warmup)
-        if self.beta_warmup > 1:
-            raise ConfigError(f"beta_warmup must be in [0, 1], got {self.beta_warmup!r}")
         if isinstance(self.action_bins, bool) or not isinstance(self.action_bins, int) \
                 or not (self.action_bins == 0 or 2 <= self.action_bins <= MAX_BINS):
             raise ConfigError(f"action_bins must be 0 (Gaussian) or an integer from 2 to "
@@ -246,12 +198,12 @@ class TPOConfig:
         _nonnegative("margin", self.margin)
         _nonnegative("dead_zone", self.dead_zone)
         _nonnegative("explore", self.explore)
+        _nonnegative("select_penalty", self.select_penalty)
+        _nonnegative("second_tolerance", self.second_tolerance)
         _nonnegative("tie_break", self.tie_break)
         for name in ("explore", "tie_break"):
             if getattr(self, name) >= 1:
                 raise ConfigError(f"{name} must be in [0, 1), got {getattr(self, name)!r}")
-        if isinstance(self.telescope, bool):  # written when telescope was a flag
-            object.__setattr__(self, "telescope", "all" if self.telescope else "off")
         for name, choices in (("constraint", CONSTRAINTS), ("tie_critic", TIE_CRITICS),
                               ("advantage", ADVANTAGE_FORMS), ("telescope", TELESCOPES)):
             value = getattr(self, name)
@@ -286,25 +238,21 @@ class TPOConfig:
         return tomli_w.dumps(self.to_dict())
 
     @classmethod
-    def defaults(cls, policy: str = "categorical", continuous: bool = False,
-                 **values: Any) -> TPOConfig:
-        """The defaults for a ``policy`` of :data:`POLICY_DEFAULTS` (categorical,
-        gaussian or discretized), in a ``continuous`` state space also
-        :data:`CONTINUOUS_DEFAULTS`, with ``values`` on top."""
-        extra = CONTINUOUS_DEFAULTS if continuous else {}
-        return cls.from_dict({**POLICY_DEFAULTS[policy], **extra, **values})
+    def from_profile(cls, profile: str | Sequence[str] = "grid", policy: str = "categorical",
+                     **values: Any) -> TPOConfig:
+        """The config of ``profile`` (a name of :data:`PROFILES`, several names, or
+        names joined by commas, applied in order) for a policy of ``policy``'s kind
+        (:data:`POLICY_DEFAULTS`), with ``values`` on top."""
+        settings = dict(POLICY_DEFAULTS[policy])
+        for name in profile_names(profile):
+            settings.update(PROFILES[name])
+        return cls.from_dict({**settings, **values})
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TPOConfig:
         if not isinstance(data, dict):
             raise ConfigError(f"a config is a table of settings, got {type(data).__name__}")
-        known = {f.name for f in fields(cls)}
-        removed = set(data) & REMOVED
-        if removed:
-            raise ConfigError(f"config key(s) {', '.join(sorted(removed))} were removed in tpo "
-                              "0.2 (measured as no help: docs/notes/tpo-learning.md); delete "
-                              "them from the config")
-        unknown = set(data) - known
+        unknown = set(data) - {f.name for f in fields(cls)}
         if unknown:
             raise ConfigError(f"unknown config key(s): {', '.join(sorted(unknown))}")
         values = dict(data)
@@ -314,11 +262,11 @@ class TPOConfig:
         return cls(**values)
 
     @classmethod
-    def from_saved(cls, data: dict[str, Any]) -> TPOConfig:
-        """A config that tpo wrote (a saved model's, a resumed run's): a field added
-        since it was written takes the value it meant then (:data:`ADDED`), not
-        today's default."""
-        return cls.from_dict({**ADDED, **data} if isinstance(data, dict) else data)
+    def from_saved(cls, data: dict[str, Any], format: int = FORMAT) -> TPOConfig:
+        """A config that tpo wrote (a saved model's, a resumed run's) in ``format``."""
+        if format < FORMAT and isinstance(data, dict):
+            data = _from_format_7(data)
+        return cls.from_dict(data)
 
     @classmethod
     def from_toml(cls, text: str) -> TPOConfig:
@@ -326,6 +274,57 @@ class TPOConfig:
             return cls.from_dict(tomllib.loads(text))
         except tomllib.TOMLDecodeError as err:
             raise ConfigError(f"bad TOML: {err}") from None
+
+
+#: the fields of each group, in order
+GROUPS: dict[str, tuple[str, ...]] = {
+    "PPO": ("num_envs", "num_steps", "update_epochs", "num_minibatches", "learning_rate",
+            "anneal_lr", "gamma", "gae_lambda", "clip_eps", "ent_coef", "ent_coef_end",
+            "vf_coef", "max_grad_norm", "hidden", "activation", "action_bins"),
+    "TMDP": ("constraint", "beta", "completion", "phase_fractions"),
+    "mechanisms": ("select", "select_penalty", "roots_completion", "tolerance", "margin",
+                   "telescope", "dead_zone", "advantage", "tie_break", "tie_critic",
+                   "explore", "carry_temperature", "mixed_population", "second_tolerance"),
+}
+
+
+def profile_names(profile: str | Sequence[str]) -> tuple[str, ...]:
+    """The names of ``profile`` (one name, several, or names joined by commas),
+    each checked against :data:`PROFILES`."""
+    names = profile.split(",") if isinstance(profile, str) else list(profile)
+    names = [n.strip() if isinstance(n, str) else n for n in names]
+    bad = [n for n in names if n not in PROFILES]
+    if not names or bad:
+        raise ConfigError(f"unknown profile {bad[0] if bad else profile!r:.60}: choose from "
+                          f"{', '.join(PROFILES)}")
+    return tuple(names)
+
+
+#: what a config of format 7 or before meant by a key it did not have
+_FORMAT_7_ABSENT = {"margin": 0.0, "tie_break": 0.0, "select": False, "action_bins": 0,
+                    "telescope": "off", "advantage": "penalized", "mixed_population": False,
+                    "roots_completion": False, "dead_zone": 0.0}
+#: switches of format 7 that format 8 dropped, and the value under which they did nothing
+_FORMAT_7_DROPPED = {"beta_warmup": 0.0}
+
+
+def _from_format_7(data: dict[str, Any]) -> dict[str, Any]:
+    """A format-7 config as format 8: absent keys take the value they meant then, a
+    dropped switch must be off, and an old flag of ``telescope`` is read."""
+    data = {**_FORMAT_7_ABSENT, **data}
+    for key, off in _FORMAT_7_DROPPED.items():
+        if data.pop(key, off) != off:
+            raise ConfigError(f"this config sets {key}, which tpo no longer has; train "
+                              "again without it")
+    if data.get("advantage") == "literal":
+        raise ConfigError('this config sets advantage = "literal", which tpo no longer has; '
+                          "train again with another")
+    for key in ("critic_refit", "reset_actor", "clip_value"):  # switches of tpo 0.1
+        if key in data:
+            raise ConfigError(f"config key {key} was removed in tpo 0.2; delete it")
+    if isinstance(data.get("telescope"), bool):  # written when telescope was a flag
+        data["telescope"] = "all" if data["telescope"] else "off"
+    return data
 
 
 def _positive(name: str, value: Any) -> None:

@@ -5,16 +5,12 @@ Objective ``i``'s PPO phase penalises each transition by
 ``C_wv = max(0, -A_w(s_t, a_t) - eta_wv)``, where the ancestral advantage comes
 from the frozen critic of ``w``: ``A_w = r_w + gamma V_w(s_{t+1}) - V_w(s_t)``.
 
-Four forms of the advantage:
+Three forms of the advantage:
 
 - ``"penalized"`` (the paper's): GAE on the Lagrangian reward
   ``r_i - beta * penalty`` (Eq. 6's reward) with critic ``V_i`` trained on its
   returns. Its gradient is Prop. 3's; a violating action's own advantage carries
   its penalty.
-- ``"literal"``: Eq. 10 as printed, ``delta_t - gamma beta penalty(s_{t+1}, a_{t+1})``:
-  the penalty moves one step back with a factor gamma, and critic ``V_i`` learns the
-  raw returns. A violating action's penalty then never enters its own advantage, only
-  its predecessors' — kept for comparison.
 - ``"traced"`` (the grid's default; the continuous robot takes ``"immediate"``):
   ``GAE(r_t) - beta sum_l (gamma lambda)^l penalty_{t+l}``, the penalized form's
   advantage with critic ``V_i`` on the raw returns (GAE is linear in the reward):
@@ -38,7 +34,7 @@ import jax.numpy as jnp
 from tpo.algo.losses import check_shapes, discounted_cumsum, gae
 
 #: tpo.algo.config.ADVANTAGE_FORMS
-AdvantageForm = Literal["penalized", "literal", "immediate", "traced"]
+AdvantageForm = Literal["traced", "immediate", "penalized"]
 
 
 def ancestral_advantages(rewards: jax.Array, values: jax.Array, next_values: jax.Array,
@@ -108,7 +104,6 @@ def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Arr
     ``trace_decay`` the traced form's ``gamma lambda'`` (by default ``gamma lambda``)::
 
         penalized: A_t = GAE(r_t - beta penalty_t)
-        literal:   A_t = GAE(r_t) - sum_l (gamma lambda)^l gamma beta penalty_{t+l+1}
         immediate: A_t = GAE(r_t) - beta penalty_t
         traced:    A_t = GAE(r_t) - beta sum_l (gamma lambda')^l penalty_{t+l}
     """
@@ -121,9 +116,5 @@ def lagrangian_advantages(form: AdvantageForm, reward: jax.Array, value: jax.Arr
     advantages, targets = gae(reward, value, next_value, terminated, done, gamma, lam)
     if form == "immediate":
         return advantages - beta * penalty, targets
-    if form == "traced":
-        decay = gamma * lam if trace_decay is None else trace_decay
-        return advantages - beta * discounted_cumsum(penalty, decay, done), targets
-    following = jnp.concatenate([penalty[1:], jnp.zeros_like(penalty[:1])])
-    shifted = gamma * beta * following * (1.0 - done)
-    return advantages - discounted_cumsum(shifted, gamma * lam, done), targets
+    decay = gamma * lam if trace_decay is None else trace_decay
+    return advantages - beta * discounted_cumsum(penalty, decay, done), targets

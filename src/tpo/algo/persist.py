@@ -26,9 +26,10 @@ from tpo.atomic import write_dir_atomic
 from tpo.errors import DamagedModel, TPOError
 from tpo.schema import check_table
 
-FORMAT = 7  # 5: model.json holds the SHA-256 of state.msgpack; 6: the phases' snapshots;
-#: 7: each learner's design and observation view (a population's members)
-READS = (5, 6, 7)  # a format-5 state's snapshots are its actor (nothing to choose among);
+FORMAT = 8  # 5: model.json holds the SHA-256 of state.msgpack; 6: the phases' snapshots;
+#: 7: each learner's design and observation view (a population's members); 8: the
+#: config's fields in groups (tpo.algo.config.FORMAT; the state as in 7)
+READS = (5, 6, 7, 8)  # a format-5 state's snapshots are its actor (nothing to choose among);
 #: a state before 7 learned the first design
 
 

@@ -9,7 +9,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from tpo.algo.config import TPOConfig
@@ -42,14 +41,6 @@ class Problem:
         head: ``[C]`` the critic head (a phase) whose values constraint ``c`` reads.
         slack_index: ``[C]`` its slack: an edge's index, or ``n_edges`` for zero.
         active: ``[P, C]`` 1 where phase ``p`` keeps constraint ``c``.
-        beta: ``[P]`` penalty multiplier of every phase.
-        tie: ``[P, P]`` weight of head ``h``'s return in phase ``p``'s objective (``tie_critic``):
-            ``tie_break ** (j + 1) * range_p / range_h`` for the ``j``-th ancestor ``h``
-            of the leaf ``p`` in topological order (roots first), else 0 (an inner
-            phase breaks no ties: it keeps its indifference open to descendants).
-        tie_bound: ``[P]`` the most the tie-break moves one step's advantage of phase
-            ``p``: ``tie_break * range_p``, so an ancestor's large value-to-go (lost
-            at a terminal step) never outweighs the phase's own advantage there.
         start: ``[P]`` the phase whose final policy phase ``p`` starts from: the one
             before it, but a roots' completion phase starts from its root's own
             policy (which knows where that objective's reward lies).
@@ -64,16 +55,13 @@ class Problem:
     head: np.ndarray
     slack_index: np.ndarray
     active: np.ndarray
-    beta: np.ndarray
-    tie: np.ndarray
-    tie_bound: np.ndarray
     start: np.ndarray
     reference: int
     phase_names: tuple[str, ...]
 
     @classmethod
-    def build(cls, graph: ObjectiveGraph, objectives: Sequence[str], config: TPOConfig,
-              reward_low: np.ndarray, reward_high: np.ndarray) -> Problem:
+    def build(cls, graph: ObjectiveGraph, objectives: Sequence[str], config: TPOConfig
+              ) -> Problem:
         graph = graph.bind(tuple(objectives))
         col = {n: i for i, n in enumerate(objectives)}
         phase = {n: i for i, n in enumerate(graph.order)}
@@ -111,30 +99,13 @@ class Problem:
         active = np.zeros((len(rows), len(constraints)), np.float32)
         for p, row in enumerate(rows):
             active[p, row] = 1.0
-        reward_arr = np.array(reward, np.int32)
-        if config.beta == "auto":
-            beta = value_bounds(reward_low, reward_high, config.gamma)[reward_arr]
-        else:
-            beta = np.full(len(reward), float(config.beta))
-        ranges = reward_ranges(reward_low, reward_high)[reward_arr]
-        tie = np.zeros((len(rows), len(rows)), np.float32)
-        leaf = phase[graph.leaf]
-        for j, h in enumerate(phase[n] for n in graph.ancestors(graph.leaf)):
-            tie[leaf, h] = config.tie_break ** (j + 1) * ranges[leaf] / ranges[h]
         pairs = np.array(constraints, np.int32).reshape(-1, 2)
-        return cls(tuple(objectives), graph, reward_arr, pairs[:, 0], pairs[:, 1], active,
-                   beta.astype(np.float32), tie,
-                   (config.tie_break * ranges).astype(np.float32), np.array(start, np.int32),
-                   reference, tuple(names))
+        return cls(tuple(objectives), graph, np.array(reward, np.int32), pairs[:, 0],
+                   pairs[:, 1], active, np.array(start, np.int32), reference, tuple(names))
 
     @property
     def n_phases(self) -> int:
         return len(self.reward)
-
-    def constraint_slacks(self, slack: jax.Array) -> jax.Array:
-        """Every constraint's slack ``[C]`` from the edges' ``slack [n_edges]`` (zero
-        for the completion constraints)."""
-        return jnp.concatenate([slack, jnp.zeros(1)])[jnp.asarray(self.slack_index)]
 
 
 class Acting(NamedTuple):

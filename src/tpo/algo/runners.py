@@ -9,8 +9,6 @@ metrics stacked over them.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from functools import partial
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -18,41 +16,35 @@ import numpy as np
 
 from tpo.algo.evaluate import Episodes
 from tpo.algo.phases import Acting
-from tpo.algo.train import SELECT_EPISODES, Rollout, Trainer, TrainState
+from tpo.algo.train import Rollout, Trainer, TrainState
 from tpo.envs.gym_adapter import EnvError, HostEnv
 
 Runner = Callable[[TrainState, jax.Array, int, int], tuple[TrainState, dict]]
 
 
-def jax_runner(trainer: Trainer, task: Any = None, population: bool = False) -> Runner:
+def jax_runner(trainer: Trainer, population: bool = False) -> Runner:
     """``n`` updates by one jitted program per ``length`` (so a run's shorter last
-    chunk compiles nothing new); metrics of the ``n`` updates. The chunk that ends
-    the run also finishes it (:meth:`Trainer.finish` on the JAX env ``task``, by
-    default the training env). With ``population``, the state is a population's
-    members stacked ``[M, ...]``, trained vmapped (metrics ``[M, n, ...]``), and
-    finishing answers with one member (:meth:`Trainer.finish_population`)."""
+    chunk compiles nothing new); metrics of the ``n`` updates. With ``population``,
+    the state is a population's members stacked ``[M, ...]``, trained vmapped
+    (metrics ``[M, n, ...]``)."""
     if population:
         def run_chunk(states: TrainState, slack: jax.Array, n: jax.Array, length: int):
             return jax.vmap(lambda s: trainer.run_chunk(s, slack, n, length))(states)
 
         chunk = jax.jit(run_chunk, static_argnums=3)
-        finish = jax.jit(partial(trainer.finish_population, env=task))
     else:
         chunk = jax.jit(trainer.run_chunk, static_argnums=3)
-        finish = jax.jit(partial(trainer.finish, env=task))
 
     def run(state: TrainState, slack: jax.Array, n: int, length: int):
         state, rows = chunk(state, slack, jnp.int32(n), length)
-        if int(np.min(state.update)) >= trainer.num_updates:
-            state = finish(state, slack)
         return state, jax.tree.map(lambda x: x[:, :n] if population else x[:n], rows)
 
     return run
 
 
 class HostRunner:
-    """Runs :class:`Trainer` updates on rollouts of a :class:`HostEnv`; the call that
-    ends the run also finishes it (:meth:`finish`)."""
+    """Runs :class:`Trainer` updates on rollouts of a :class:`HostEnv`, and plays its
+    episodes for evaluation and the end-of-run selection."""
 
     def __init__(self, trainer: Trainer, env: HostEnv) -> None:
         self.trainer, self.env = trainer, env
@@ -69,7 +61,6 @@ class HostRunner:
             acting, obs, jax.random.wrap_key_data(key_data)))
         self._begin = jax.jit(trainer.begin_phase)
         self._learn = jax.jit(trainer.learn)
-        self._score = jax.jit(trainer.score)
 
     def __call__(self, state: TrainState, slack: jax.Array, n: int, length: int
                  ) -> tuple[TrainState, dict]:
@@ -79,8 +70,6 @@ class HostRunner:
             state, rollout, episodes = self.collect(state, slack)
             state, metrics = self._learn(self._begin(state), slack, rollout, episodes)
             history.append(metrics)
-        if int(state.update) >= self.trainer.num_updates:
-            state = self.finish(state, slack)
         return state, jax.tree.map(lambda *x: jnp.stack(x), *history)
 
     def collect(self, state: TrainState, slack: jax.Array
@@ -115,22 +104,6 @@ class HostRunner:
         state = state.replace(obs=jnp.asarray(obs), key=key,
                               episodes=jax.tree.map(jnp.asarray, stats))
         return state, rollout, stats.summary()
-
-    def finish(self, state: TrainState, slack: jax.Array) -> TrainState:
-        """:meth:`Trainer.finish` on the host env: every snapshot's greedy episodes
-        (the same seeds for each) scored by the same compiled code."""
-        trainer = self.trainer
-        if not trainer.selects:
-            return state
-        acting = trainer.final_acting(state, slack)
-        scored = []
-        for p in range(trainer.problem.n_phases):
-            actor = jax.tree.map(lambda s, p=p: s[p], state.snapshots)
-            ep = self.greedy_episodes(acting._replace(actor=actor), SELECT_EPISODES,
-                                      seed=int(state.update))
-            scored.append(self._score(state, slack, ep))
-        returns, penalty = (jnp.stack(x) for x in zip(*scored, strict=True))
-        return trainer.answer(state, slack, returns, penalty)
 
     def greedy_episodes(self, acting: Acting, episodes: int, seed: int) -> Episodes:
         """``episodes`` greedy episodes of the runner's env from ``env.reset(seed)``, as

@@ -1,32 +1,151 @@
-"""The end of a TPO run: which phase's final policy answers (docs/design.md §5).
+"""The end of a TPO run: which policy answers (docs/design.md §5).
 
 Where the leaf is indifferent (its goal out of reach within the slack), the
 leaf's phase leaves its policy to chance, while the tie rule of
-docs/design.md §2 (lexicographic completion) gives the remaining freedom to the
-ancestors, roots first. The policies the ancestors' own phases ended with are
-often exactly that completion (measured in docs/notes/tpo-learning.md; a fan's
-roots keep nothing of each other, so there a phase after the leaf learns it:
-:class:`tpo.algo.phases.Problem`), so the
-run ends by choosing among the phases' final policies, judged by their greedy
-Monte Carlo returns: the tie rule, applied to the candidates the run already has.
-The answer must also keep the leaf's ancestral edges by LAR's own rule on the
-candidates' returns (:func:`keepers`), where one of them does. A population of
-independent learners (:class:`tpo.algo.TPO`'s ``population``) then answers with
-the member whose answer that rule prefers, judged on the same returns
-(:func:`choose_member`).
+docs/design.md §2 gives the remaining freedom to the ancestors, roots first.
+The policies the ancestors' own phases ended with are often exactly that
+completion, so a run ends by selecting among the phases' final policies (the
+*candidates*), judged by their greedy Monte Carlo returns: the tie rule, applied
+to the policies the run has (:func:`select_phase`). The answer must also keep
+the leaf's ancestral edges by LAR's own rule on the candidates' returns
+(:func:`keepers`), where one of them does. A population of independent learners
+then answers with the member whose answer that rule prefers (:func:`select_member`).
+
+:func:`select` is the one entry point, for a JAX env (traceable: jit or vmap it)
+and for a host-stepped Gymnasium env (its :class:`tpo.algo.runners.HostRunner`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import partial
 
 import jax
 import jax.numpy as jnp
 
+from tpo.algo.constraints import penalty
+from tpo.algo.evaluate import Episodes, discounted, episodes
+from tpo.algo.lagrangian import ancestral_advantages
+from tpo.algo.phases import reward_ranges
+from tpo.algo.runners import HostRunner
+from tpo.algo.train import Trainer, TrainState
 from tpo.tabular.judge import ABS_TOL, REL_TOL
 
+SELECT_EPISODES = 16  # greedy episodes per candidate
 
-def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
+
+def select(trainer: Trainer, state: TrainState, slack: jax.Array,
+           env: object) -> TrainState:
+    """A finished run's answer: ``state`` acting with the candidate that
+    :func:`select_phase` selects (``config.select``; else ``state`` unchanged), or
+    for a population's members stacked ``[M, ...]`` the state of the member that
+    :func:`select_member` selects, acting with its own answer. ``env``, a JAX env
+    of the task (e.g. from its start) or a :class:`HostRunner`, plays the
+    candidates' greedy episodes. Depends only on the phases' final policies, so
+    selecting twice is selecting once."""
+    if jnp.ndim(state.update) == 1:  # a population's members
+        returns, pen = jax.vmap(lambda s: candidates(trainer, s, slack, env))(state)
+        picks = (jax.vmap(partial(selected, trainer, slack))(returns, pen)
+                 if selects(trainer) else jnp.full(returns.shape[0], trainer.problem.reference))
+        member = select_member(returns, picks, edges(trainer), allowance(trainer, slack),
+                               tie_order(trainer))
+        return _acting_with(jax.tree.map(lambda x: x[member], state), picks[member])
+    if not selects(trainer):
+        return state
+    returns, pen = candidates(trainer, state, slack, env)
+    return _acting_with(state, selected(trainer, slack, returns, pen))
+
+
+def selects(trainer: Trainer) -> bool:
+    """Whether a finished run selects its answer among the phases' policies."""
+    return trainer.config.select and trainer.problem.n_phases > 1
+
+
+def candidates(trainer: Trainer, state: TrainState, slack: jax.Array, env: object
+               ) -> tuple[jax.Array, jax.Array]:
+    """Every phase's final policy, acting greedily as the run's policy does (under
+    the reference phase's constraints) for ``SELECT_EPISODES`` episodes of ``env``
+    (the same for each), scored by :func:`score`: ``[P, P]`` and ``[P]``. On a JAX
+    env one candidate at a time (their episodes' critic activations are the
+    memory)."""
+    acting = trainer.acting(state, slack, jnp.int32(trainer.problem.reference))
+    if isinstance(env, HostRunner):
+        scored = jax.jit(partial(score, trainer))
+        runs = []
+        for p in range(trainer.problem.n_phases):
+            actor = jax.tree.map(lambda s, p=p: s[p], state.snapshots)
+            ep = env.greedy_episodes(acting._replace(actor=actor), SELECT_EPISODES,
+                                     seed=int(state.update))
+            runs.append(scored(state, slack, ep))
+        returns, pen = (jnp.stack(x) for x in zip(*runs, strict=True))
+        return returns, pen
+    keys = jax.random.split(jax.random.fold_in(state.key, 1), SELECT_EPISODES)
+    return jax.lax.map(lambda actor: score(trainer, state, slack, episodes(
+        trainer.policy, acting._replace(actor=actor), env, keys, True)), state.snapshots)
+
+
+def score(trainer: Trainer, state: TrainState, slack: jax.Array, ep: Episodes
+          ) -> tuple[jax.Array, jax.Array]:
+    """A candidate's mean discounted return of every phase's objective ``[P]`` and
+    mean discounted penalty of the leaf's constraints ``[]`` over its episodes."""
+    terms, gamma = trainer.terms, trainer.config.gamma
+    # The critics see every step at once (one batched call, not one per step).
+    value, next_value = trainer.values(state, jnp.stack([ep.obs, ep.next_obs]))[..., 0]
+    rewards = ep.reward[..., jnp.asarray(terms.reward)]
+    adv_all = ancestral_advantages(rewards, value, next_value, ep.terminated, gamma)
+    pen = penalty(terms, adv_all, slack, jnp.int32(leaf_phase(trainer)),
+                  trainer.loose_tolerance(state))
+    return (discounted(rewards, ep.alive, gamma).mean(0),
+            discounted(pen, ep.alive, gamma).mean(0))
+
+
+def selected(trainer: Trainer, slack: jax.Array, returns: jax.Array, pen: jax.Array
+             ) -> jax.Array:
+    """The candidate that a run of ``trainer`` selects (:func:`select_phase`) from the
+    candidates' ``returns [P, P]`` and penalty ``[P]``, holding the parents of the leaf's
+    constraints at zero ``slack``, among those that keep the leaf's ancestral edges
+    by LAR's rule on the candidates."""
+    prob, terms = trainer.problem, trainer.terms
+    leaf = leaf_phase(trainer)
+    ranges = reward_ranges(trainer.env.reward_low, trainer.env.reward_high)[prob.reward]
+    zero = (terms.slacks(slack) <= 0) & (jnp.asarray(prob.active[leaf]) > 0)
+    held = jnp.zeros(prob.n_phases, bool).at[jnp.asarray(prob.head)].max(zero)
+    return select_phase(returns, pen, tie_order(trainer),
+                        trainer.config.select_penalty * float(ranges[prob.head].max(initial=1.0)),
+                        held, prob.reference, edges(trainer), allowance(trainer, slack))
+
+
+def edges(trainer: Trainer) -> list[tuple[int, int]]:
+    """Every edge of the graph as its ``(parent, child)`` objectives' phases."""
+    graph = trainer.problem.graph
+    phase = {name: i for i, name in enumerate(graph.order)}
+    return [(phase[e.parent], phase[e.child]) for e in graph.edges]
+
+
+def allowance(trainer: Trainer, slack: jax.Array) -> jax.Array:
+    """The most each edge lets its child lose of the parent's value at the start
+    (a local ``slack`` eta allows eta / (1 - gamma))."""
+    return jnp.asarray(slack, jnp.float32) / (1 - trainer.config.gamma)
+
+
+def leaf_phase(trainer: Trainer) -> int:
+    """The leaf objective's phase."""
+    return len(trainer.problem.graph.order) - 1
+
+
+def tie_order(trainer: Trainer) -> list[int]:
+    """The phases in the order the tie rule weighs them: the leaf, then its
+    ancestors roots first."""
+    return [leaf_phase(trainer), *range(leaf_phase(trainer))]
+
+
+def _acting_with(state: TrainState, snapshot: jax.Array) -> TrainState:
+    """``state`` with its actor replaced by its phase ``snapshot``'s."""
+    actor = jax.tree.map(lambda s: s[snapshot], state.snapshots)
+    return state.replace(params={**state.params, "actor": actor})
+
+
+def select_phase(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
            penalty_tolerance: float | jax.Array, held: jax.Array | None = None,
            reference: int = -1, edges: Sequence[tuple[int, int]] = (),
            allowance: jax.Array | None = None) -> jax.Array:
@@ -46,7 +165,7 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     (worse on one only where better on one before it), a check in the returns
     themselves where the penalty's allowance (the critics' noise) could hide a
     real loss of a few reward units. With ``edges`` and ``allowance`` (as in
-    :func:`choose_member`), a candidate must also keep the leaf's ancestral edges
+    :func:`select_member`), a candidate must also keep the leaf's ancestral edges
     by LAR's rule on the candidates' returns, if an admissible one does: the
     reference may itself have lost a zero-slack parent's best. Where it lost one
     of an objective's ancestral edges by that rule, its return of the objective
@@ -59,7 +178,7 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     (:func:`tpo.tabular.judge.tolerance`).
     """
     if edges and allowance is None:
-        raise ValueError("choose: edges need their allowance")
+        raise ValueError("select_phase: edges need their allowance")
     n = returns.shape[0]
     ref = returns[reference]
     tolerance = _tolerance(ref)
@@ -86,13 +205,13 @@ def choose(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
     return jnp.where(keep[reference], index[reference], jnp.max(jnp.where(keep, index, -1)))
 
 
-def choose_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[int, int]],
+def select_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[int, int]],
                   allowance: jax.Array, order: Sequence[int]) -> jax.Array:
     """The index of the answering member of a population, by LAR's rule on their returns.
 
     ``returns [M, N, P]``: member ``m``'s candidate ``n``'s return of phase ``p``'s
     objective (the objectives' phases first, in topological order); ``picks [M]``:
-    each member's own answer (:func:`choose`). ``edges``: every edge of the graph
+    each member's own answer (:func:`select_phase`). ``edges``: every edge of the graph
     as ``(parent, child)`` phases; ``allowance [E]``: the most each edge lets the
     child lose of the parent's value at the start (a local slack ``eta`` allows
     ``eta / (1 - gamma)``). Taking the objectives in topological order, the best
@@ -101,7 +220,7 @@ def choose_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[in
     edge ``(w, v)`` when its return of ``w`` is at least that best less the
     allowance and the judge's tolerance. Among the answers that keep the leaf's
     ancestral edges (all of them if none does), the best on ``order`` (the leaf
-    first, then its ancestors roots first), ties as in :func:`choose`; the first
+    first, then its ancestors roots first), ties as in :func:`select_phase`; the first
     such member.
     """
     m, n = returns.shape[:2]
@@ -117,7 +236,7 @@ def choose_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[in
 def keepers(pool: jax.Array, values: jax.Array, edges: Sequence[tuple[int, int]],
             allowance: jax.Array, objectives: int) -> jax.Array:
     """Which of ``values [N, P]`` keep each objective's ancestral edges by LAR's
-    rule on the policies' returns ``pool [M, P]`` (:func:`choose_member`): taking the
+    rule on the policies' returns ``pool [M, P]`` (:func:`select_member`): taking the
     objectives (the first ``objectives`` columns) in topological order, ``w``'s best
     is its largest return among the policies of ``pool`` that keep ``w``'s ancestral
     edges, and a policy keeps the edge ``(w, v)`` (``edges[e]``) when its return of
@@ -141,8 +260,3 @@ def keepers(pool: jax.Array, values: jax.Array, edges: Sequence[tuple[int, int]]
 def _tolerance(value: jax.Array) -> jax.Array:
     """The judge's tolerance around ``value``: 2 %, or 0.5."""
     return jnp.maximum(REL_TOL * jnp.abs(value), ABS_TOL)
-
-
-def stack_snapshot(snapshots: dict, phase: jax.Array, actor: dict) -> dict:
-    """``snapshots`` (every leaf ``[P, ...]``) with ``actor`` written at ``phase``."""
-    return jax.tree.map(lambda s, a: s.at[phase].set(a), snapshots, actor)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from functools import cached_property
+from functools import cached_property, partial
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +20,7 @@ from tpo.algo.guard import check_finite
 from tpo.algo.persist import read_model, restore_state, save_model
 from tpo.algo.phases import Problem
 from tpo.algo.runners import HostRunner, Runner, jax_runner
+from tpo.algo.selection import select
 from tpo.algo.train import Trainer, TrainState
 from tpo.envs.continuous import ContinuousNav
 from tpo.envs.gym_adapter import EnvFactory, HostEnv
@@ -44,16 +45,16 @@ class TPO:
         graph: an :class:`ObjectiveGraph` or a spec string such as ``"M>A>G"``
             (a single name, e.g. ``"goal"``, is plain PPO).
         slack: one slack or one per edge (ignored when ``graph`` is a graph).
-        config: hyperparameters (default :meth:`TPOConfig.defaults` for the env's
+        config: hyperparameters (default :meth:`TPOConfig.from_profile` for the env's
             action space: for a ``Box``, the discretized policy's if its bounds are
-            finite, else a Gaussian's; for :class:`ContinuousNav`, the continuous
-            state's too).
+            finite, else a Gaussian's; the ``continuous`` profile for
+            :class:`ContinuousNav`, else ``grid``).
         seed: PRNG seed of the parameters, the run and a Gymnasium env's resets.
         objectives: names of a Gymnasium env's reward components, in order.
         population: independent learners trained at once (one program, vmapped; a
             JAX env only), each on ``total_timesteps`` steps; the model answers with
             the one whose policy LAR's rule prefers on their greedy Monte Carlo
-            returns (:meth:`Trainer.finish_population`). Member 0 is seeded as a
+            returns (:func:`tpo.algo.selection.select`). Member 0 is seeded as a
             lone learner is; with ``config.mixed_population`` the members differ
             in design and in the part of the observation they see
             (:meth:`_member_design`).
@@ -76,7 +77,8 @@ class TPO:
                 bounded = np.all(np.isfinite(env.action_space.low)) and np.all(
                     np.isfinite(env.action_space.high))
                 kind = "discretized" if bounded else "gaussian"
-            self.config = TPOConfig.defaults(kind, continuous=isinstance(env, ContinuousNav))
+            profile = "continuous" if isinstance(env, ContinuousNav) else "grid"
+            self.config = TPOConfig.from_profile(profile, kind)
         if self.host and population > 1:
             raise TPOError("a population needs a JAX env (a map), not a Gymnasium env")
         if self.host and env.num_envs != self.config.num_envs:  # a vector env's copies
@@ -90,6 +92,7 @@ class TPO:
         self.state: TrainState | None = None
         self.trainer: Trainer | None = None
         self._run: Runner | None = None
+        self._select: Callable[[TrainState, jax.Array], TrainState] | None = None
         self.num_timesteps = 0
 
     @property
@@ -100,8 +103,7 @@ class TPO:
     @cached_property
     def phases(self) -> tuple[str, ...]:
         """The objective of every training phase, in order (completion phases marked)."""
-        return Problem.build(self.graph, self.env.objectives, self.config, self.env.reward_low,
-                             self.env.reward_high).phase_names
+        return Problem.build(self.graph, self.env.objectives, self.config).phase_names
 
     @property
     def finished(self) -> bool:
@@ -167,13 +169,17 @@ class TPO:
             self._fresh_env = False
         if self._run is None:
             self._run = (HostRunner(trainer, self.env) if self.host
-                         else jax_runner(trainer, self.eval_env, self.stacked))
+                         else jax_runner(trainer, self.stacked))
+            self._select = (partial(select, trainer, env=self._run) if self.host
+                            else jax.jit(partial(select, trainer, env=self.eval_env)))
         slack = trainer.slack_array()
         done = self.updates_done
         while done < trainer.num_updates:
             n = min(chunk_updates - done % chunk_updates, trainer.num_updates - done)
             new_state, metrics = self._run(state, slack, n,
                                            min(chunk_updates, trainer.num_updates))
+            if done + n >= trainer.num_updates:  # the run's end: its answer
+                new_state = self._select(new_state, slack)
             metrics = jax.tree.map(np.asarray, metrics)
             if self.stacked:  # the members' mean (the phase is every member's)
                 metrics = {k: v.mean(0).astype(v.dtype) for k, v in metrics.items()}
@@ -273,7 +279,7 @@ class TPO:
         registered, one of tpo's own dependencies (MO-Gymnasium), or the package
         named by ``trust_env_module``."""
         meta, blob = read_model(path)
-        config = TPOConfig.from_saved(meta["config"])
+        config = TPOConfig.from_saved(meta["config"], meta["format"])
         env = from_spec(meta["env"], num_envs=config.num_envs, trust_module=trust_env_module)
         population = meta.get("population", 1)
         model = cls(env, meta["dag"], meta["slack"], config, meta["seed"],

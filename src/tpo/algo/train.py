@@ -30,7 +30,6 @@ from __future__ import annotations
 from functools import partial
 from typing import Any, NamedTuple
 
-import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -38,37 +37,16 @@ import optax
 from flax import struct
 
 from tpo.algo.config import ConfigError, TPOConfig
-from tpo.algo.distributions import Categorical, Distribution
+from tpo.algo.constraints import lagrangian_terms, loose_tolerance, trace_decay
+from tpo.algo.distributions import Distribution
 from tpo.algo.episodes import EpisodeStats
-from tpo.algo.evaluate import Episodes, discounted, episodes
-from tpo.algo.lagrangian import (
-    admissible,
-    ancestral_advantages,
-    below_best,
-    lagrangian_advantages,
-    violations,
-)
-from tpo.algo.losses import clipped_surrogate, discounted_cumsum, normalize, weighted_mean
-from tpo.algo.networks import (
-    ADVANTAGE_UNIT,
-    Actor,
-    Critics,
-    ValueNorm,
-    init_params,
-    scale_output,
-)
-from tpo.algo.phases import Acting, Problem, reward_ranges
-from tpo.algo.selection import choose, choose_member, stack_snapshot
+from tpo.algo.forms import constraint_form
+from tpo.algo.losses import clipped_surrogate, normalize, weighted_mean
+from tpo.algo.networks import Actor, Critics, ValueNorm, init_params, scale_output
+from tpo.algo.phases import Acting, Problem
 from tpo.graph import ObjectiveGraph
 
 MAX_UPDATES = 2**31 - 1  # the update counter is an int32
-SELECT_EPISODES = 16  # greedy episodes per candidate at a run's end (Trainer.finish)
-#: a candidate's penalty may exceed the leaf policy's by this many one-step reward ranges
-#: of the constrained parents (the learned critics' noise, docs/notes/tpo-learning.md)
-SELECT_PENALTY = 5.0
-#: a population's second design (``TPOConfig.mixed_population``): a loose constraint's
-#: tolerance as a share of its parent head's value spread, and its least value
-SECOND_TOLERANCE, SECOND_FLOOR = 0.1, 0.02
 
 
 @struct.dataclass
@@ -128,34 +106,11 @@ class Trainer:
                  total_timesteps: int) -> None:
         self.env, self.config, self.total_timesteps = env, config, total_timesteps
         space = env.action_space
-        #: whether phases act within the ancestors' admissible actions (else penalised)
-        self.restricts = (config.constraint == "restriction" and bool(graph.edges)
-                          and isinstance(space, gym.spaces.Discrete))
-        self.problem = Problem.build(graph, env.objectives, config, env.reward_low,
-                                     env.reward_high)
-        #: each constraint's tolerance, a share of its parent's reward range (restriction:
-        #: every constraint; penalty: the completion constraints, at zero slack)
-        parent = self.problem.reward[self.problem.head]  # each constraint's parent objective
-        ranges = reward_ranges(env.reward_low, env.reward_high)[parent]
-        self.tolerance = (config.tolerance * ranges).astype(np.float32)
-        order, graph = self.problem.graph.order, self.problem.graph
-        #: the constraints that telescope at zero slack (``config.telescope``)
-        self.telescoped = np.array([config.telescope == "all" or (
-            config.telescope == "roots" and h < len(order) and not graph.parents(order[h]))
-            for h in self.problem.head], bool)
-        #: the zero-slack constraints counted from the tolerance: the completion's (on the
-        #: leaf or a completion phase; a roots' completion's on a root is kept as a root's
-        #: edge is), and with ``telescope = "roots"`` every one that does not telescope
-        completion = (self.problem.slack_index == len(graph.edges)) & (
-            self.problem.head >= len(order) - 1)
-        self.loose = completion | (config.telescope == "roots") & ~self.telescoped
-        #: penalty form: each constraint's margin below its slack (capped at half the slack)
-        self.margin = (config.margin * ranges).astype(np.float32)
-        #: penalty form: each constraint's dead zone, where it telescopes (at zero slack)
-        #: and its parent is a cost (best one-step reward exactly 0: to pay nothing is free)
-        cost = np.asarray(env.reward_high, float)[parent] == 0
-        self.dead_zone = (config.dead_zone * ranges * cost * self.telescoped
-                          ).astype(np.float32)
+        self.problem = Problem.build(graph, env.objectives, config)
+        #: how the phases keep their constraints, and the constraint terms' sizes
+        self.form = constraint_form(config, self.problem, space, env.reward_low,
+                                    env.reward_high)
+        self.terms = self.form.terms
         #: the observation's blocks of one non-zero number, read by gathers (InputDense)
         onehots = tuple(map(tuple, getattr(env, "observation_onehots", ())))
         try:
@@ -174,10 +129,9 @@ class Trainer:
         whole = np.ones((1, *env.obs_shape), np.float32)
         self.views = np.concatenate([whole, *[np.asarray(v, np.float32)[None] for v in
                                               getattr(env, "observation_views", ())]])
-        n_out = 1 + int(space.n) if self.restricts else 1
-        self.critics = Critics(config.hidden, self.problem.n_phases, n_out, config.activation,
-                               onehots)
         n_phases = self.problem.n_phases
+        self.critics = Critics(config.hidden, n_phases, self.form.n_out, config.activation,
+                               onehots)
         if config.phase_fractions is not None and len(config.phase_fractions) != n_phases:
             raise ConfigError(f"phase_fractions has {len(config.phase_fractions)} values for "
                               f"{n_phases} phase(s)")
@@ -200,21 +154,17 @@ class Trainer:
         self.learning_rate = self._per_phase(
             config.learning_rate, 0.0 if config.anneal_lr else config.learning_rate)
         self.ent_coef = self._per_phase(config.ent_coef, config.ent_coef_end)
-        # The penalty's multiplier rises from 0 over the first beta_warmup of every phase.
-        self.beta_scale = self._per_phase(0.0 if config.beta_warmup else 1.0, 1.0,
-                                          config.beta_warmup)
         # Actor and critics clip their gradient norms apart; Adam's state restarts
         # with every phase.
         self.optimizer = optax.chain(
             optax.clip_by_global_norm(config.max_grad_norm),
             optax.inject_hyperparams(optax.adam)(learning_rate=config.learning_rate, eps=1e-5))
 
-    def _per_phase(self, start: float, end: float, share: float = 1.0) -> optax.Schedule:
-        """A schedule over updates that goes linearly from ``start`` to ``end`` over
-        the first ``share`` of every phase (then stays at ``end``)."""
+    def _per_phase(self, start: float, end: float) -> optax.Schedule:
+        """A schedule over updates that goes linearly from ``start`` to ``end`` within
+        every phase."""
         return optax.join_schedules(
-            [optax.linear_schedule(start, end, max(1, int(share * n)))
-             for n in self.phase_updates],
+            [optax.linear_schedule(start, end, max(1, int(n))) for n in self.phase_updates],
             [int(b) for b in self.phase_start[1:-1]])
 
     # ------------------------------------------------------------------ init
@@ -285,35 +235,12 @@ class Trainer:
     def policy(self, acting: Acting, obs: jax.Array) -> Distribution:
         """``pi(. | obs)``: the actor's distribution, within the admissible actions in
         the restriction form."""
-        return self.restricted(acting.actor, obs, self.allowed(acting, obs))
+        return self.restricted(acting.actor, obs, self.form.allowed(self.critics, acting, obs))
 
     def restricted(self, actor_params: dict, obs: jax.Array,
                    allowed: jax.Array | None) -> Distribution:
-        """The actor's distribution at ``obs``, restricted to ``allowed`` (if not None)."""
-        pi = self.actor.apply({"params": actor_params}, obs)
-        return pi if allowed is None else pi.restrict(allowed)
-
-    def allowed(self, acting: Acting, obs: jax.Array) -> jax.Array | None:
-        """The admissible actions ``[..., A]`` of ``acting.phase`` at ``obs`` (None in
-        the penalty form): LAR's sets computed phase by phase on the frozen critics'
-        advantage outputs. A constraint on head ``w`` measures an action against the
-        best action of ``A_w(s)`` (:func:`tpo.algo.lagrangian.below_best`, as LAR's
-        ``V_w = max_{A_w} Q_w``), its edge's slack widened by ``tolerance`` times the
-        objective's one-step reward range; :func:`tpo.algo.lagrangian.admissible`
-        then keeps the actions of least total violation."""
-        if not self.restricts:
-            return None
-        prob = self.problem
-        head = jnp.asarray(prob.head)
-        adv = acting.value_norm.denormalize(
-            self.critics.apply({"params": acting.critics}, obs))[..., head, 1:]  # [..., C, A]
-        slack = prob.constraint_slacks(acting.slack) + jnp.asarray(self.tolerance)
-        sets = [jnp.ones(adv.shape[:-2] + adv.shape[-1:], bool)]  # A_0: every action
-        for p in range(1, prob.n_phases):  # a phase's constraints read earlier heads only
-            known = jnp.stack(sets + sets[:1] * (prob.n_phases - p), axis=-2)  # [..., P, A]
-            gaps = below_best(adv, known[..., head, :])
-            sets.append(admissible(gaps, slack, jnp.asarray(prob.active[p])))
-        return jnp.stack(sets, axis=-2)[..., acting.phase, :]
+        """The actor's distribution at ``obs``, within ``allowed`` (the form's)."""
+        return self.form.restrict(self.actor.apply({"params": actor_params}, obs), allowed)
 
     def values(self, state: TrainState, obs: jax.Array) -> jax.Array:
         """Every critic head's outputs ``[..., P, n_out]`` at ``obs``, as values
@@ -360,21 +287,13 @@ class Trainer:
 
     def behave(self, acting: Acting, obs: jax.Array, key: jax.Array
                ) -> tuple[jax.Array, jax.Array, jax.Array | None, jax.Array]:
-        """The actions of a rollout step at ``obs [E, D]``: the policy's samples, and in
-        the restriction form, on a share ``explore`` of the envs, a uniform action
-        instead (any action: a critic that wrongly excludes one must still see it).
-        Returns the actions, their log-probabilities under the policy, the
-        admissible actions and the exploring flags (float)."""
+        """The actions of a rollout step at ``obs [E, D]``, their log-probabilities
+        under the policy, the admissible actions and the exploring flags (float;
+        :meth:`tpo.algo.forms.RestrictionForm.explore`)."""
         k_pi, k_explore, k_uniform = jax.random.split(key, 3)
-        allowed = self.allowed(acting, obs)
+        allowed = self.form.allowed(self.critics, acting, obs)
         pi = self.restricted(acting.actor, obs, allowed)
-        action = pi.sample(k_pi)
-        explore = jnp.zeros(action.shape[:1], jnp.float32)
-        if allowed is not None:
-            explore = (jax.random.uniform(k_explore, explore.shape)
-                       < self.config.explore).astype(jnp.float32)
-            uniform = Categorical(jnp.zeros(allowed.shape)).sample(k_uniform)
-            action = jnp.where(explore > 0, uniform, action)
+        action, explore = self.form.explore(pi.sample(k_pi), allowed, k_explore, k_uniform)
         return action, pi.log_prob(action), allowed, explore
 
     def learn(self, state: TrainState, slack: jax.Array, rollout: Rollout,
@@ -385,8 +304,9 @@ class Trainer:
         lr = jnp.asarray(self.learning_rate(state.update), jnp.float32)
         ent_coef = jnp.asarray(self.ent_coef(state.update), jnp.float32)
         state, losses = self.ppo_epochs(state, batch, phase, value_norm, lr, ent_coef)
-        state = state.replace(snapshots=stack_snapshot(state.snapshots, phase,
-                                                       state.params["actor"]))
+        snapshots = jax.tree.map(lambda s, a: s.at[phase].set(a), state.snapshots,
+                                 state.params["actor"])
+        state = state.replace(snapshots=snapshots)
         # A phase that starts from another phase's final policy than the one before it
         # (Problem.start) gets it now, so that its first rollout is already its own.
         start = self.problem.start
@@ -397,7 +317,7 @@ class Trainer:
             actor = _where_tree(switch, jax.tree.map(lambda s: s[source], state.snapshots),
                                 state.params["actor"])
             state = state.replace(params={**state.params, "actor": actor})
-        excluded = 0.0 if rollout.allowed is None else 1.0 - rollout.allowed.mean()
+        excluded = self.form.excluded(rollout.allowed)
         metrics = {"phase": phase, "lr": lr,
                    "penalty": penalty.mean(), "violation_rate": (penalty > 0).mean(),
                    "excluded": excluded, **episodes, **jax.tree.map(jnp.mean, losses)}
@@ -424,51 +344,26 @@ class Trainer:
 
     def lagrangian_targets(self, state: TrainState, slack: jax.Array, rollout: Rollout,
                            phase: jax.Array) -> tuple[Batch, jax.Array, ValueNorm]:
-        """The phase's advantages and critic targets, the penalty of every transition
-        ``[T, E]`` and the value statistics with the new targets folded in.
-
-        Penalty form: Eq. 10 with the frozen ancestral critics' one-step violations,
-        counted from each slack less its ``margin``.
-        Restriction form: no penalty (the policy acts only within the admissible
-        actions); the advantage outputs ``Q_h(s, a) - V_h(s)`` of the phase's head
-        and of every earlier head ``h`` learn the one-step advantages
-        ``r_h + gamma V_h(s') - V_h(s)`` (of ``[T, E, P]``): with ``V_h`` frozen these
-        targets are fixed, so an ancestor's advantages keep sharpening on every later
-        rollout while its values stay frozen.
-        Both forms break the leaf's ties by its ancestors' returns, weighted by
-        ``problem.tie`` (roots first). ``tie_critic = "ancestors"``: the policy's
-        advantage gains the ancestors' GAE, each against its frozen critic, each
-        step's share bounded by ``problem.tie_bound``, and the critic's targets stay
-        the phase's own; ``"leaf"``: the ancestors' weighted rewards join the phase's
-        reward, so its advantage and its critic's targets both value them under its
-        own policy.
-        """
-        cfg, prob = self.config, self.problem
-        pick = jax.nn.one_hot(phase, prob.n_phases)
-        rewards, value, next_value, adv_all, penalty = self.constraint_terms(
-            state, slack, *self.rollout_values(state, rollout), rollout.reward,
-            rollout.terminated, phase)
-        reward, v, next_v = rewards @ pick, value @ pick, next_value @ pick
-        tie = jnp.asarray(prob.tie)[phase]
-        if prob.tie.any() and cfg.tie_critic == "leaf":
-            reward = reward + rewards @ tie
-        q_target = adv_all if self.restricts else None
-        # An exploring step cuts the trace of the policy's returns before it.
-        following = jnp.concatenate([rollout.explore[1:], jnp.zeros_like(rollout.explore[:1])])
-        done = jnp.maximum(rollout.done, following)
-        advantage, target = lagrangian_advantages(
-            cfg.advantage, reward, v, next_v, penalty,
-            jnp.asarray(prob.beta)[phase] * self.beta_scale(state.update),
-            rollout.terminated, done, cfg.gamma, cfg.gae_lambda, self.penalty_trace(state))
-        if prob.tie.any() and cfg.tie_critic == "ancestors":
-            # the ancestors' one-step advantages, bounded, then discounted
-            bound = jnp.asarray(prob.tie_bound)[phase]
-            step = jnp.clip(adv_all @ tie, -bound, bound)
-            advantage = advantage + discounted_cumsum(step, cfg.gamma * cfg.gae_lambda, done)
+        """The phase's training batch (:func:`tpo.algo.constraints.lagrangian_terms`),
+        the penalty of every transition ``[T, E]`` and the value statistics with the
+        new targets folded in."""
+        cfg, terms = self.config, self.terms
+        value, next_value = self.rollout_values(state, rollout)
+        advantage, target, penalty = lagrangian_terms(
+            terms, phase, slack, rollout.reward, value, next_value, rollout.terminated,
+            rollout.done, rollout.explore, self.loose_tolerance(state),
+            trace_decay(terms, state.design))
+        q_target = self.form.q_target(rollout.reward, value, next_value, rollout.terminated)
         batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantage, target,
                       q_target, rollout.allowed, 1.0 - rollout.explore)
         batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
-        return batch, penalty, state.value_norm.update(target, pick)
+        return batch, penalty, state.value_norm.update(
+            target, jax.nn.one_hot(phase, self.problem.n_phases))
+
+    def loose_tolerance(self, state: TrainState) -> jax.Array:
+        """The loose constraints' tolerance ``[C]`` of ``state``'s design
+        (:func:`tpo.algo.constraints.loose_tolerance`)."""
+        return loose_tolerance(self.terms, state.design, state.value_norm.stats()[1])
 
     def rollout_values(self, state: TrainState, rollout: Rollout
                        ) -> tuple[jax.Array, jax.Array]:
@@ -490,48 +385,6 @@ class Trainer:
             slots, jnp.arange(envs)].set(out[steps:])
         return value, next_value
 
-    def constraint_terms(self, state: TrainState, slack: jax.Array, value: jax.Array,
-                         next_value: jax.Array, reward: jax.Array, terminated: jax.Array,
-                         phase: jax.Array) -> tuple[jax.Array, ...]:
-        """Of transitions (any leading axes) whose every head's values and next values
-        are ``value`` and ``next_value`` ``[..., P]``: every phase's reward, the
-        one-step advantages against the frozen critics (``[..., P]``, returned beside
-        the rewards and the values), and ``phase``'s penalty ``[...]`` (Eq. 10's sum of
-        violations, each counted from its slack less its ``margin``, a loose one from
-        :meth:`loose_tolerance`; zero in the restriction form, where the admissible
-        actions alone keep the slacks)."""
-        prob = self.problem
-        rewards = reward[..., jnp.asarray(prob.reward)]
-        adv_all = ancestral_advantages(rewards, value, next_value, terminated,
-                                       self.config.gamma)
-        if self.restricts:
-            return rewards, value, next_value, adv_all, jnp.zeros(adv_all.shape[:-1])
-        slacks = prob.constraint_slacks(slack)
-        margin = jnp.minimum(jnp.asarray(self.margin), slacks / 2)
-        loose = jnp.asarray(self.loose) & (slacks <= 0)
-        c = violations(adv_all, jnp.asarray(prob.head),
-                       slacks - margin + jnp.where(loose, self.loose_tolerance(state), 0.0),
-                       jnp.asarray(self.telescoped), jnp.asarray(self.dead_zone))
-        penalty = c @ jnp.asarray(prob.active)[phase]  # zeros when no edges
-        return rewards, value, next_value, adv_all, penalty
-
-    def loose_tolerance(self, state: TrainState) -> jax.Array:
-        """The tolerance ``[C]`` from which a loose constraint's violations count:
-        ``tolerance`` times its parent's one-step reward range; in the second design,
-        ``SECOND_TOLERANCE`` times the spread (std) of its parent head's value targets,
-        at least ``SECOND_FLOOR`` (a head's errors grow with its values' spread, as it
-        learns them normalised: docs/notes/tpo-learning.md, session 28)."""
-        spread = state.value_norm.stats()[1][jnp.asarray(self.problem.head)]
-        second = jnp.maximum(SECOND_TOLERANCE * spread, SECOND_FLOOR)
-        return jnp.where(state.design == 1, second, jnp.asarray(self.tolerance))
-
-    def penalty_trace(self, state: TrainState) -> jax.Array:
-        """The decay of the traced penalty (:func:`lagrangian_advantages`):
-        ``gamma * gae_lambda``; ``gamma`` in the second design, so a violation reaches
-        the fork that led to it undiminished by lambda."""
-        cfg = self.config
-        return jnp.where(state.design == 1, cfg.gamma, cfg.gamma * cfg.gae_lambda)
-
     def ppo_epochs(self, state: TrainState, batch: Batch, phase: jax.Array,
                    value_norm: ValueNorm, lr: jax.Array, ent_coef: jax.Array
                    ) -> tuple[TrainState, dict]:
@@ -547,8 +400,8 @@ class Trainer:
                                                               ent_coef)
             grads = self.see_only(grads, state.view)
             a_up, actor_opt = self.optimizer.update(grads["actor"], actor_opt)
-            c_up, critic_opt = self.optimizer.update(self._trainable(grads["critics"], phase),
-                                                     critic_opt)
+            c_up, critic_opt = self.optimizer.update(
+                self.form.trainable(grads["critics"], phase), critic_opt)
             params = {"actor": optax.apply_updates(params["actor"], a_up),
                       "critics": optax.apply_updates(params["critics"], c_up)}
             return (params, actor_opt, critic_opt), info
@@ -579,148 +432,13 @@ class Trainer:
                                mb.weight)
         ent = pi.entropy().mean()
         mean, std = scale
-        if mb.q_target is None:
-            value = self.critics.head(params["critics"], phase, mb.obs)[:, 0]
-            adv_loss = 0.0
-        else:
-            out = self.critics.apply({"params": params["critics"]}, mb.obs)  # [B, P, 1 + A]
-            value = out[:, phase, 0]
-            action = mb.action[:, None, None].astype(jnp.int32)
-            adv = jnp.take_along_axis(out[..., 1:], action, -1)[..., 0]  # [B, P]
-            heads = (jnp.arange(self.problem.n_phases) <= phase).astype(jnp.float32)
-            adv_loss = jnp.mean((adv - mb.q_target / (std * ADVANTAGE_UNIT)) ** 2, axis=0) @ heads
+        value, adv_loss = self.form.critic_outputs(self.critics, params["critics"], mb, phase,
+                                                   std)
         vl = 0.5 * weighted_mean((value - (mb.target - mean[phase]) / std[phase]) ** 2,
                                  mb.weight) + 0.5 * adv_loss
         total = pg - ent_coef * ent + cfg.vf_coef * vl
         kl = weighted_mean((jnp.exp(log_ratio) - 1) - log_ratio, mb.weight)
         return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent, "approx_kl": kl}
-
-    def _trainable(self, grads: dict, phase: jax.Array) -> dict:
-        """The critics' gradient restricted to what ``phase`` trains: its own head and,
-        in the restriction form, the advantage outputs of the earlier heads (the
-        output layer's columns ``1:``; their hidden layers and values stay frozen)."""
-        if not self.restricts:
-            return grads  # only the phase's head is in the loss
-        heads = jnp.arange(self.problem.n_phases)
-        own = (heads == phase).astype(jnp.float32)
-        columns = jnp.where(jnp.arange(self.critics.n_out) == 0, own[:, None],
-                            (heads <= phase).astype(jnp.float32)[:, None])  # [P, n_out]
-
-        def mask(path, g):
-            if jax.tree_util.keystr(path).startswith("['heads']['out']"):
-                return g * (columns[:, None, :] if g.ndim == 3 else columns)
-            return g * own.reshape(-1, *([1] * (g.ndim - 1)))
-
-        return jax.tree_util.tree_map_with_path(mask, grads)
-
-    # ---------------------------------------------------------------- finish
-    def finish(self, state: TrainState, slack: jax.Array, env: Any = None) -> TrainState:
-        """A finished run's answer (``config.select``, else ``state`` unchanged): the
-        actor becomes the final policy of the phase that :meth:`answer` picks from
-        :meth:`candidates` on ``env`` (a JAX env of the task, e.g. from its start;
-        by default the training env). Depends only on the snapshots, so finishing
-        twice is finishing once."""
-        if not self.selects:
-            return state
-        return self.answer(state, slack, *self.candidates(state, slack,
-                                                          self.env if env is None else env))
-
-    @property
-    def selects(self) -> bool:
-        """Whether a finished run chooses its answer among the phases' policies."""
-        return self.config.select and self.problem.n_phases > 1
-
-    def answer(self, state: TrainState, slack: jax.Array, returns: jax.Array,
-               penalty: jax.Array) -> TrainState:
-        """``state`` acting with the snapshot that :meth:`pick` picks."""
-        return self._acting_with(state, self.pick(slack, returns, penalty))
-
-    def pick(self, slack: jax.Array, returns: jax.Array, penalty: jax.Array) -> jax.Array:
-        """The snapshot that :func:`tpo.algo.selection.choose` picks from the
-        candidates' ``returns [P, P]`` and ``penalty [P]``, holding the parents of the
-        leaf's constraints at zero ``slack``, among those that keep the leaf's
-        ancestral edges by LAR's rule on the candidates."""
-        prob = self.problem
-        leaf = self.leaf_phase
-        ranges = reward_ranges(self.env.reward_low, self.env.reward_high)[prob.reward]
-        zero = (prob.constraint_slacks(slack) <= 0) & (jnp.asarray(prob.active[leaf]) > 0)
-        held = jnp.zeros(prob.n_phases, bool).at[jnp.asarray(prob.head)].max(zero)
-        return choose(returns, penalty, self.tie_order,
-                      SELECT_PENALTY * float(ranges[prob.head].max(initial=1.0)), held,
-                      prob.reference, self.edges, self.allowance(slack))
-
-    @property
-    def edges(self) -> list[tuple[int, int]]:
-        """Every edge of the graph as its ``(parent, child)`` objectives' phases."""
-        graph = self.problem.graph
-        phase = {name: i for i, name in enumerate(graph.order)}
-        return [(phase[e.parent], phase[e.child]) for e in graph.edges]
-
-    def allowance(self, slack: jax.Array) -> jax.Array:
-        """The most each edge lets its child lose of the parent's value at the start
-        (a local ``slack`` eta allows eta / (1 - gamma))."""
-        return jnp.asarray(slack, jnp.float32) / (1 - self.config.gamma)
-
-    @property
-    def leaf_phase(self) -> int:
-        """The leaf objective's phase."""
-        return len(self.problem.graph.order) - 1
-
-    @property
-    def tie_order(self) -> list[int]:
-        """The phases in the order the tie rule weighs them: the leaf, then its
-        ancestors roots first."""
-        return [self.leaf_phase, *range(self.leaf_phase)]
-
-    @staticmethod
-    def _acting_with(state: TrainState, snapshot: jax.Array) -> TrainState:
-        """``state`` with its actor replaced by its phase ``snapshot``'s."""
-        actor = jax.tree.map(lambda s: s[snapshot], state.snapshots)
-        return state.replace(params={**state.params, "actor": actor})
-
-    def finish_population(self, states: TrainState, slack: jax.Array, env: Any = None
-                          ) -> TrainState:
-        """The answer of a population of finished runs, ``states`` stacked ``[M, ...]``:
-        every member's answer (:meth:`finish`, or its own policy without
-        ``config.select``), then the member that
-        :func:`tpo.algo.selection.choose_member` picks by LAR's rule on every
-        candidate's greedy returns; one state (that member's, acting with its
-        answer)."""
-        env = self.env if env is None else env
-        returns, penalty = jax.vmap(lambda s: self.candidates(s, slack, env))(states)
-        picks = (jax.vmap(partial(self.pick, slack))(returns, penalty) if self.selects
-                 else jnp.full(returns.shape[0], self.problem.reference))
-        member = choose_member(returns, picks, self.edges, self.allowance(slack),
-                               self.tie_order)
-        return self._acting_with(jax.tree.map(lambda x: x[member], states), picks[member])
-
-    def candidates(self, state: TrainState, slack: jax.Array, env: Any
-                   ) -> tuple[jax.Array, jax.Array]:
-        """Every phase's final policy, acting greedily as the run's policy does (under
-        the reference phase's constraints) for ``SELECT_EPISODES`` episodes of ``env`` (the
-        same for each), scored by :meth:`score`: ``[P, P]`` and ``[P]``. One candidate at a
-        time (their episodes' critic activations are the memory)."""
-        acting = self.final_acting(state, slack)
-        keys = jax.random.split(jax.random.fold_in(state.key, 1), SELECT_EPISODES)
-        return jax.lax.map(lambda actor: self.score(state, slack, episodes(
-            self.policy, acting._replace(actor=actor), env, keys, True)), state.snapshots)
-
-    def final_acting(self, state: TrainState, slack: jax.Array) -> Acting:
-        """What the run's policy acts with once it is over."""
-        return self.acting(state, slack, jnp.int32(self.problem.reference))
-
-    def score(self, state: TrainState, slack: jax.Array, ep: Episodes
-              ) -> tuple[jax.Array, jax.Array]:
-        """A candidate's mean discounted return of every phase's objective ``[P]`` and
-        mean discounted penalty of the leaf's constraints ``[]`` over its episodes."""
-        leaf = jnp.int32(self.leaf_phase)
-        # The critics see every step at once (one batched call, not one per step).
-        value, next_value = self.values(state, jnp.stack([ep.obs, ep.next_obs]))[..., 0]
-        rewards, *_, penalty = self.constraint_terms(
-            state, slack, value, next_value, ep.reward, ep.terminated, leaf)
-        gamma = self.config.gamma
-        return (discounted(rewards, ep.alive, gamma).mean(0),
-                discounted(penalty, ep.alive, gamma).mean(0))
 
     # ------------------------------------------------------------------- run
     def run(self, state: TrainState, slack: jax.Array, num_updates: int

@@ -18,7 +18,7 @@ from itertools import pairwise
 from pathlib import Path
 from typing import NoReturn
 
-from tpo.algo.config import TPOConfig
+from tpo.algo.config import GROUPS, PROFILE_HELP, TPOConfig
 from tpo.cli.options import UsageError, add_fields, read_fields
 from tpo.envs import OBJECTIVES, bundled_maps, grid_model, load_map
 from tpo.errors import TPOError
@@ -30,6 +30,10 @@ from tpo.tabular import LARSolution, solve_lar
 
 EXIT_USAGE = 2
 
+
+#: the profiles, listed under ``tpo train --help`` and ``tpo sweep --help``
+PROFILES_EPILOG = "profiles (--profile): " + "; ".join(
+    f"{name}: {text}" for name, text in PROFILE_HELP.items())
 
 def parse_slack(text: str, option: str = "--slack") -> list[float]:
     """``"0"`` or ``"0,100"`` -> floats (the graph checks sign and count)."""
@@ -443,7 +447,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                      action=args.action or SweepSpec.action, xs=tuple(parse_slack(args.slack)),
                      edge_slack=tuple(v.strip() for v in args.edge_slack.split(","))
                      if args.edge_slack else (), config=learner_defaults(
-                         args.dynamics, args.action or SweepSpec.action, **config),
+                         args.dynamics, args.action or SweepSpec.action, args.profile or "",
+                         **config),
                      **budget)
     spec.check(learned=not args.exact_only)  # before anything is made
     engine = None if args.exact_only else backend_of(args)
@@ -557,8 +562,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train TPO on a map and write a run directory",
                        description="Train TPO on a map (or a Gymnasium env) into a run "
-                                   "directory. Every option of the last two groups is also "
-                                   "a config.toml key (with _ for -).")
+                                   "directory. Every option of the last four groups is also "
+                                   "a config.toml key (with _ for -).",
+                       epilog=PROFILES_EPILOG)
     p.add_argument("--config", metavar="FILE.toml",
                    help="settings from TOML (the keys are the option names below, with _); "
                         "options given on the command line win")
@@ -569,7 +575,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_loading_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_fields(p, RunSpec, "problem and budget", skip={"config"})
-    add_fields(p, TPOConfig, "hyperparameters (TPOConfig)")
+    add_fields(p, TPOConfig, "hyperparameters (TPOConfig)", groups=GROUPS)
     p.set_defaults(handler=cmd_train)
 
     p = sub.add_parser("reproduce", help="the paper's Figures 2 and 3, with plots and report")
@@ -601,7 +607,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=cmd_reproduce)
 
-    p = sub.add_parser("sweep", help="LAR's curve and TPO's runs against slack, any map",
+    p = sub.add_parser("sweep", epilog=PROFILES_EPILOG,
+                       help="LAR's curve and TPO's runs against slack, any map",
                        description="A slack sweep of one DAG: LAR's exact curve at once, "
                                    "then TPO trained at every slack x seed (units of slacks "
                                    "x seeds, each one compiled program, on local workers or "
@@ -631,7 +638,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "every seed; default 1)")
     add_backend_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_fields(p, TPOConfig, "hyperparameters (TPOConfig)")
+    p.add_argument("--profile", metavar="NAME,...",
+                   help="the learner's named profile(s), applied in order (listed below; "
+                        "default grid, or continuous with --dynamics continuous)")
+    add_fields(p, TPOConfig, "hyperparameters (TPOConfig)", groups=GROUPS)
     p.set_defaults(handler=cmd_sweep)
 
     p = sub.add_parser("eval", help="re-evaluate a saved run directory")

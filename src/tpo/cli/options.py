@@ -44,14 +44,20 @@ def flag(name: str) -> str:
 
 
 def add_fields(parser: argparse.ArgumentParser, cls: type, title: str,
-               skip: Collection[str] = ()) -> None:
+               skip: Collection[str] = (), groups: dict[str, Collection[str]] | None = None
+               ) -> None:
     """One flag per documented field of ``cls`` (not in ``skip``), in a group
-    ``title``; unset flags stay ``None`` (the config file or the default decides)."""
-    group = parser.add_argument_group(title)
+    ``title`` (or, with ``groups``, in the group ``title: NAME`` that lists the
+    field); unset flags stay ``None`` (the config file or the default decides)."""
+    named = {name: g for g, names in (groups or {}).items() for name in names}
+    made: dict[str, argparse._ArgumentGroup] = {}
     hints, docs = typing.get_type_hints(cls), field_docs(cls)
     for f in dataclasses.fields(cls):
         if f.name in skip:
             continue
+        heading = f"{title}: {named[f.name]}" if f.name in named else title
+        group = made.get(heading) or made.setdefault(heading,
+                                                     parser.add_argument_group(heading))
         if f.name not in docs:
             raise TypeError(f"{cls.__name__}.{f.name} has no docstring")
         default = f.default_factory() if f.default is dataclasses.MISSING else f.default

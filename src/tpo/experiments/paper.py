@@ -47,18 +47,11 @@ PAPER = {"a": {"avoid": (-133.65, -311.16), "monitor": (-114.47, -310.06),
                "goal": (-957.6, -957.46)},
          "d": {"avoid": (-251.67, -519.57), "monitor": (-185.26, -509.55),
                "goal": (-769.72, -670.23)}}
-# The forms of the learner, each the TPOConfig fields it sets on the grid learner's
-# defaults, the default learner's first: a reproduction runs it alone, or several side
-# by side on the same seeds. penalty and restriction are TPOConfig.constraint's two
-# forms; paper is the paper's TPO as printed (Algorithm 1 with Eq. 10): the penalized
-# advantage, every constraint rectified, no margin, no tie-break, the leaf's own policy
-# as the answer (docs/tpo-algorithm.md).
-FORM_CONFIGS = {"penalty": {"constraint": "penalty"},
-                "restriction": {"constraint": "restriction"},
-                "paper": {"constraint": "penalty", "advantage": "penalized",
-                          "telescope": "off", "margin": 0.0, "tie_break": 0.0,
-                          "select": False}}
-FORMS = tuple(FORM_CONFIGS)
+# The forms of the learner, each a profile of tpo.algo.config.PROFILES applied over the
+# dynamics' own, the default learner's first: a reproduction runs it alone, or several
+# side by side on the same seeds. penalty and restriction are TPOConfig.constraint's two
+# forms; paper is the paper's TPO as printed (Algorithm 1 with Eq. 10).
+FORMS = ("penalty", "restriction", "paper")
 FIGURE3 = Panel("fig3", "M>A>G", (0,), r"$\eta_1$")  # slack (0, 0) and (100, 0)
 FIGURE3_SLACKS = (0.0, 100.0)
 # Each panel's share of the budget (Settings.steps, 1 M), measured by the reproduction
@@ -99,7 +92,7 @@ class Settings:
     slacks: tuple[float, ...] = (0, 1, 2, 5, 10, 20, 50, 100)
     seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
     steps: int = 1_000_000
-    forms: tuple[str, ...] = FORMS[:1]  # of FORM_CONFIGS: every panel runs in each form
+    forms: tuple[str, ...] = FORMS[:1]  # every panel runs in each form
     completion: bool = False  # TPOConfig.completion
     shares: dict[str, float] = field(default_factory=lambda: dict(SHARES))
     action: str = "velocity"  # the continuous robot's action kind (velocity or heading)

@@ -2,7 +2,8 @@
 (the robot's paths on the household map), by one call or ``tpo reproduce``.
 
 Every panel runs in each form of the learner (``Settings.forms``, of
-:data:`~tpo.experiments.paper.FORM_CONFIGS`: the penalty, the restriction and the
+:data:`~tpo.experiments.paper.FORMS`, profiles of :data:`tpo.algo.config.PROFILES`:
+the penalty, the restriction and the
 paper's TPO as printed, on the same seeds). A panel of one form is one
 :func:`~tpo.experiments.sweep.run_sweep`: every slack × seed of its DAG trains as
 one compiled program: a unit of :mod:`tpo.experiments.engine`, run by its local
@@ -43,7 +44,6 @@ from tpo.experiments.paper import (
     CONTINUOUS_OBSERVATION,
     CONTINUOUS_PANELS,
     CONTINUOUS_SHARES,
-    FORM_CONFIGS,
     FORMS,
     GRID_OBSERVATION,
     Panel,
@@ -102,8 +102,9 @@ def learner(form: str, settings: Settings, action: str = "") -> TPOConfig:
     robot's action kind, whose policy's defaults it takes; "" on the grid)."""
     from tpo.experiments.runspec import learner_defaults
 
-    return learner_defaults("continuous" if action else "grid", action,
-                            **FORM_CONFIGS[form], completion=settings.completion)
+    dynamics = "continuous" if action else "grid"
+    return learner_defaults(dynamics, action, f"{dynamics},{form}",
+                            completion=settings.completion)
 
 
 def check_settings(settings: Settings) -> None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import tomli_w
 
-from tpo.algo.config import MAX_POPULATION, TPOConfig
+from tpo.algo.config import FORMAT, MAX_POPULATION, TPOConfig, profile_names
 from tpo.errors import TPOError
 
 if TYPE_CHECKING:
@@ -40,13 +40,14 @@ DEFAULT_OBSERVATION = "auto"
 OBSERVATIONS = ("auto", "factored", "onehot", "coords", "factored+onehot")
 
 
-def learner_defaults(dynamics: str, action: str, **values: Any) -> TPOConfig:
+def learner_defaults(dynamics: str, action: str, profile: str = "", **values: Any
+                     ) -> TPOConfig:
     """The config the navigation robot's learner starts from, ``values`` on top
-    (:meth:`TPOConfig.defaults`): the discretized policy's for velocity actions in
-    continuous space, else the categorical one's; in continuous space the
-    continuous state's."""
+    (:meth:`TPOConfig.from_profile`): the discretized policy's for velocity actions
+    in continuous space, else the categorical one's; ``profile``, by default the
+    dynamics' own (``grid`` or ``continuous``)."""
     kind = "discretized" if dynamics == "continuous" and action == "velocity" else "categorical"
-    return TPOConfig.defaults(kind, continuous=dynamics == "continuous", **values)
+    return TPOConfig.from_profile(profile or dynamics, kind, **values)
 
 
 class RunError(TPOError):
@@ -90,6 +91,9 @@ class RunSpec:
     mo-gymnasium:deep-sea-treasure-v0)"""
     objectives: tuple[str, ...] = field(default=(), metadata={"metavar": "NAME,..."})
     """the --env's reward components, in order"""
+    profile: str = field(default="", metadata={"metavar": "NAME,..."})
+    """the learner's named profile(s), applied in order under any hyperparameter given
+    (listed below; default: grid, or continuous with continuous dynamics)"""
     config: TPOConfig = field(default_factory=TPOConfig)
 
     @classmethod
@@ -97,6 +101,7 @@ class RunSpec:
         """Run fields (defaults as declared) plus any TPOConfig field; ``saved``: the
         settings of a run that tpo wrote (:meth:`TPOConfig.from_saved`)."""
         settings = dict(settings)
+        written = settings.pop("format", FORMAT if not saved else 7)
         defaults = {f.name: f.default for f in fields(cls) if f.name != "config"}
         continuous = settings.get("dynamics") == "continuous"
         if continuous:
@@ -125,7 +130,7 @@ class RunSpec:
                            f"{run['population']}")
         if not 0 <= run["seed"] < 2**32:
             raise RunError(f"seed must be an integer from 0 to 2**32 - 1, got {run['seed']}")
-        for name in ("map", "dag", "observation", "env", "dynamics", "action"):
+        for name in ("map", "dag", "observation", "env", "dynamics", "action", "profile"):
             if not isinstance(run[name], str):
                 raise RunError(f"{name} must be a string, got {run[name]!r:.60}")
         for name in ("slip", "noise"):
@@ -147,14 +152,18 @@ class RunSpec:
         if run["env"] and not objectives:
             raise RunError(f"name the reward components of env '{run['env']}' in order: "
                            "--objectives a,b,...")
+        if isinstance(written, bool) or not isinstance(written, int) or written > FORMAT:
+            raise RunError(f"format must be an integer of at most {FORMAT} (this version's), "
+                           f"got {written!r:.60}")
+        profile = ",".join(profile_names(run["profile"] or run["dynamics"]))
         return cls(map=str(run["map"]), dag=str(run["dag"]), slack=slack, seed=run["seed"],
                    population=run["population"], steps=run["steps"],
                    dynamics=run["dynamics"], slip=float(run["slip"]),
                    observation=str(run["observation"]), action=run["action"],
                    noise=float(run["noise"]), env=str(run["env"]),
-                   objectives=tuple(objectives),
-                   config=TPOConfig.from_saved(settings) if saved else learner_defaults(
-                       run["dynamics"], run["action"], **settings))
+                   objectives=tuple(objectives), profile=profile,
+                   config=TPOConfig.from_saved(settings, written) if saved else learner_defaults(
+                       run["dynamics"], run["action"], profile, **settings))
 
     @classmethod
     def from_toml(cls, path: str | Path, saved: bool = False) -> RunSpec:
@@ -172,10 +181,10 @@ class RunSpec:
                        "noise": self.noise, "observation": self.observation}
         else:
             problem = {"map": self.map, "slip": self.slip, "observation": self.observation}
-        return tomli_w.dumps({**problem, "dag": self.dag, "slack": list(self.slack),
-                              "seed": self.seed, "population": self.population,
-                              "steps": self.steps,
-                              **self.config.to_dict()})
+        return tomli_w.dumps({"format": FORMAT, **problem, "dag": self.dag,
+                              "slack": list(self.slack), "seed": self.seed,
+                              "population": self.population, "steps": self.steps,
+                              "profile": self.profile, **self.config.to_dict()})
 
     def check(self) -> None:
         """Raise on anything training would refuse (map, DAG, slack, env, budget),

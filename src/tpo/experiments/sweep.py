@@ -24,6 +24,7 @@ from tpo.algo import TPOConfig, Trainer, TrainState
 from tpo.algo.evaluate import CONTINUOUS_TOL, episode_returns, greedy_path, noise_free
 from tpo.algo.persist import restore_state, state_bytes
 from tpo.algo.phases import Acting
+from tpo.algo.selection import select
 from tpo.envs.continuous import ContinuousNav
 from tpo.envs.continuous_model import continuous_model, path_category
 from tpo.envs.grid import GridNav
@@ -129,8 +130,8 @@ def run_sweep(env: GridNav | ContinuousNav, dag: str | ObjectiveGraph,
         if progress is not None:
             progress(done, trainer.num_updates)
     slack_j = jnp.asarray(slack_arr)
-    finish = partial(trainer.finish, env=from_spec(env.to_spec(), evaluation=True))
-    states = jax.jit(jax.vmap(jax.vmap(finish, in_axes=(0, None))))(states, slack_j)
+    answer = partial(select, trainer, env=from_spec(env.to_spec(), evaluation=True))
+    states = jax.jit(jax.vmap(jax.vmap(answer, in_axes=(0, None))))(states, slack_j)
     actings = jax.vmap(jax.vmap(trainer.acting, in_axes=(0, None)))(states, slack_j)
     evaluate = evaluate_sweep if hasattr(env, "tabular") else evaluate_reference_sweep
     return evaluate(trainer, actings, env, graphs, np.asarray(slacks, np.float64),
