@@ -184,10 +184,13 @@ def test_train_flags_reach_the_run_config_and_bad_values_are_one_line(tmp_path, 
     assert main(["train", "--map", "small", "--dag", "A>G", "--steps", "1024", "--num-envs",
                  "4", "--num-steps", "32", "--num-minibatches", "2", "--hidden", "16,16",
                  "--no-anneal-lr", "--beta", "auto", "--phase-fractions", "1,3", "--out",
-                 str(out), "--quiet", "--episodes", "2"]) == 0
+                 str(out), "--quiet", "--episodes", "2", "--profile", "paper",
+                 "--tie-break", "0.05"]) == 0
     config = (out / "config.toml").read_text()
     for line in ("num_envs = 4", "num_steps = 32", "hidden = [\n    16,\n    16,\n]",
-                 "anneal_lr = false", 'beta = "auto"', "phase_fractions = [\n    1.0,\n"):
+                 "anneal_lr = false", 'beta = "auto"', "phase_fractions = [\n    1.0,\n",
+                 'profile = "paper"', "select = false", 'telescope = "off"',
+                 "tie_break = 0.05", "format = 8"):
         assert line in config, (line, config)
     capsys.readouterr()
     for args, message in [(["--num-envs", "many"], "bad --num-envs 'many': expected int"),
@@ -198,7 +201,8 @@ def test_train_flags_reach_the_run_config_and_bad_values_are_one_line(tmp_path, 
                            "bad --observation 'grid': choose one of auto, factored, onehot, "
                            "coords, factored+onehot"),
                           (["--beta", "AUTO"], 'beta must be a finite number >= 0 or "auto"'),
-                          (["--env", " "], "bad --env ' ': expected text")]:
+                          (["--env", " "], "bad --env ' ': expected text"),
+                          (["--profile", "grid,fast"], "unknown profile 'fast': choose from")]:
         assert main(["train", "--map", "small", "--out", str(tmp_path / "x"), *args]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err

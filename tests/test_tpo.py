@@ -71,7 +71,7 @@ def test_a_restricted_model_acts_within_its_last_phase_and_round_trips(tmp_path)
     obs = model.eval_env.tabular_observations()
     acting = trainer.acting(model.state, trainer.slack_array())
     assert int(acting.phase) == 2
-    allowed = np.asarray(trainer.allowed(acting, obs))
+    allowed = np.asarray(trainer.form.allowed(trainer.critics, acting, obs))
     actions = model.predict(obs)
     assert allowed[np.arange(len(obs)), actions].all()
     loaded = TPO.load(model.save(tmp_path / "run"))

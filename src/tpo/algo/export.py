@@ -36,7 +36,7 @@ def actor_arrays(model: TPO) -> dict[str, np.ndarray]:
     (and ``log_std``)."""
     state = model.member(0)  # a population still training: its first member
     trainer = model._need_trainer()
-    if trainer.restricts:
+    if trainer.form.name == "restriction":
         raise TPOError("a restriction-form policy acts through its critics' admissible "
                        "actions; export supports the penalty form (the default)")
     actor = state.params["actor"]

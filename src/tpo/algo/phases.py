@@ -11,7 +11,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from tpo.algo.config import TPOConfig
+from tpo.algo.config import ConfigError, TPOConfig
 from tpo.algo.networks import ValueNorm
 from tpo.graph import ObjectiveGraph
 
@@ -106,6 +106,29 @@ class Problem:
     @property
     def n_phases(self) -> int:
         return len(self.reward)
+
+
+MAX_UPDATES = 2**31 - 1  # the update counter is an int32
+
+
+def phase_updates(config: TPOConfig, n_phases: int, total_timesteps: int) -> np.ndarray:
+    """The updates ``[P]`` of every phase of a run of ``total_timesteps`` steps: their
+    shares of the budget (``config.phase_fractions``, by default equal), at least one
+    each."""
+    if config.phase_fractions is not None and len(config.phase_fractions) != n_phases:
+        raise ConfigError(f"phase_fractions has {len(config.phase_fractions)} values for "
+                          f"{n_phases} phase(s)")
+    fractions = np.asarray(config.phase_fractions or [1.0] * n_phases, float)
+    fractions = fractions / fractions.max()  # sums without overflow
+    per_update = config.batch_size
+    most = per_update * (MAX_UPDATES - 1)
+    if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) \
+            or not per_update * n_phases <= total_timesteps <= most:
+        raise ConfigError(f"total_timesteps must be an integer from {per_update * n_phases} "
+                          f"(one update of {per_update} steps per phase) to {most:.3g} "
+                          f"(the update counter is int32), got {total_timesteps!r}")
+    return np.maximum(1, np.floor(total_timesteps / per_update * fractions
+                                  / fractions.sum())).astype(np.int32)
 
 
 class Acting(NamedTuple):

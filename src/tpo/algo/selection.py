@@ -149,33 +149,25 @@ def select_phase(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
            penalty_tolerance: float | jax.Array, held: jax.Array | None = None,
            reference: int = -1, edges: Sequence[tuple[int, int]] = (),
            allowance: jax.Array | None = None) -> jax.Array:
-    """The index of the answering candidate, lexicographically.
+    """The index of the selected candidate, by the tie rule on greedy returns.
 
     ``returns [N, P]``: candidate ``n``'s return of phase ``p``'s objective;
-    ``penalty [N]``: its total violation of the leaf's constraints (the leaf
-    phase's own checks); ``reference`` is the candidate that is the run's own
-    policy (the leaf's; by default the last). A candidate is admissible when its
-    penalty is at most the reference's plus ``penalty_tolerance``, and when on its
-    own phase's objective it is no
-    worse than the reference: a phase's policy stands in for
-    that objective's optimum under constraints the leaf keeps too, so one that
-    the leaf's own policy beats there is not what it stands for. ``held [P]``
-    (bool) marks the objectives the leaf keeps at zero slack: on them, taken in
-    ``order``, a candidate must be lexicographically no worse than the reference
-    (worse on one only where better on one before it), a check in the returns
-    themselves where the penalty's allowance (the critics' noise) could hide a
-    real loss of a few reward units. With ``edges`` and ``allowance`` (as in
-    :func:`select_member`), a candidate must also keep the leaf's ancestral edges
-    by LAR's rule on the candidates' returns, if an admissible one does: the
-    reference may itself have lost a zero-slack parent's best. Where it lost one
-    of an objective's ancestral edges by that rule, its return of the objective
-    bounds nothing (a leaf that never reaches the monitored room keeps off the rug
-    for free), so that objective's phase need not match it there. Among the
-    admissible ones, keep those tied with the best return of phase ``p`` for each
-    ``p`` in ``order`` (the leaf's objective first, then its ancestors roots
-    first), and of those the reference if it is still tied, else the latest.
-    Returns tie as the judge's verdicts do: within 2 % of the reference's, or 0.5
-    (:func:`tpo.tabular.judge.tolerance`).
+    ``penalty [N]``: its discounted violation of the leaf's constraints;
+    ``reference``: the run's own policy (the leaf's; by default the last). A
+    candidate is admissible when
+
+    - its penalty is at most the reference's plus ``penalty_tolerance``;
+    - it is no worse than the reference on its own phase's objective (it stands
+      for that objective's optimum), unless the reference loses one of that
+      objective's ancestral edges;
+    - on the objectives ``held [P]`` at zero slack, taken in ``order``, it is
+      lexicographically no worse than the reference;
+    - with ``edges`` and ``allowance`` (:func:`select_member`), it keeps the
+      leaf's ancestral edges by LAR's rule on the candidates, if one does.
+
+    Of those, the best on each phase of ``order`` in turn (the leaf, then its
+    ancestors roots first); the reference if still tied, else the latest.
+    Returns tie as the verdicts do: within 2 % or 0.5.
     """
     if edges and allowance is None:
         raise ValueError("select_phase: edges need their allowance")

@@ -43,10 +43,8 @@ from tpo.algo.episodes import EpisodeStats
 from tpo.algo.forms import constraint_form
 from tpo.algo.losses import clipped_surrogate, normalize, weighted_mean
 from tpo.algo.networks import Actor, Critics, ValueNorm, init_params, scale_output
-from tpo.algo.phases import Acting, Problem
+from tpo.algo.phases import Acting, Problem, phase_updates
 from tpo.graph import ObjectiveGraph
-
-MAX_UPDATES = 2**31 - 1  # the update counter is an int32
 
 
 @struct.dataclass
@@ -118,36 +116,20 @@ class Trainer:
                                          config.action_bins, onehots)
         except ValueError as err:
             raise ConfigError(str(err)) from None
-        #: the steps per env of a rollout whose ``s_{t+1}`` gets its own critic call
-        #: (:meth:`rollout_values`): the last step and every truncation, at most one in
-        #: an env's ``max_steps``; every step of an env that declares no time limit
+        #: the steps per env whose ``s_{t+1}`` gets its own critic call: the last and
+        #: every truncation (:meth:`rollout_values`), all without a time limit
         limit = getattr(env, "max_steps", None)
         self.own_next = config.num_steps if limit is None else min(
             config.num_steps, (config.num_steps - 1) // limit + 2)
-        #: the observation views a learner may learn from, ``[V, D]`` (0/1): row 0 the
-        #: whole observation, then the env's ``observation_views``
+        #: the views a learner may see, ``[V, D]``: the whole, then the env's own
         whole = np.ones((1, *env.obs_shape), np.float32)
         self.views = np.concatenate([whole, *[np.asarray(v, np.float32)[None] for v in
                                               getattr(env, "observation_views", ())]])
         n_phases = self.problem.n_phases
         self.critics = Critics(config.hidden, n_phases, self.form.n_out, config.activation,
                                onehots)
-        if config.phase_fractions is not None and len(config.phase_fractions) != n_phases:
-            raise ConfigError(f"phase_fractions has {len(config.phase_fractions)} values for "
-                              f"{n_phases} phase(s)")
-        fractions = np.asarray(config.phase_fractions or [1.0] * n_phases, float)
-        fractions = fractions / fractions.max()  # sums without overflow
-        per_update = config.batch_size
-        most = per_update * (MAX_UPDATES - 1)
-        if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) \
-                or not per_update * n_phases <= total_timesteps <= most:
-            raise ConfigError(f"total_timesteps must be an integer from {per_update * n_phases} "
-                              f"(one update of {per_update} steps per phase) to {most:.3g} "
-                              f"(the update counter is int32), got {total_timesteps!r}")
-        shares = np.maximum(1, np.floor(total_timesteps / per_update * fractions
-                                        / fractions.sum())).astype(np.int32)
-        self.phase_updates = shares
-        self.phase_start = np.concatenate([[0], np.cumsum(shares)]).astype(np.int32)
+        self.phase_updates = phase_updates(config, n_phases, total_timesteps)
+        self.phase_start = np.concatenate([[0], np.cumsum(self.phase_updates)]).astype(np.int32)
         self.num_updates = int(self.phase_start[-1])
         # The learning rate anneals to 0 within every phase (or stays constant), the
         # entropy weight from ent_coef to ent_coef_end.
@@ -178,8 +160,8 @@ class Trainer:
         """A fresh run; ``params`` default to :meth:`init_params` of ``key``. A JAX
         env resets itself; a host-stepped env passes its first observations ``obs``
         ``[E, D]`` (the state then holds no env state). ``design`` 1 learns a
-        population's second design (:meth:`loose_tolerance`, :meth:`penalty_trace`);
-        ``view`` is the row of :attr:`views` the learner sees (:meth:`see_only`)."""
+        population's second design (:mod:`tpo.algo.constraints`); ``view`` is the row
+        of :attr:`views` the learner sees (:meth:`see_only`)."""
         k_params, k_env, k_run = jax.random.split(key, 3)
         params = self.init_params(k_params) if params is None else params
         env_state = None
@@ -222,10 +204,8 @@ class Trainer:
     # -------------------------------------------------------------- policy
     def acting(self, state: TrainState, slack: jax.Array,
                phase: jax.Array | None = None) -> Acting:
-        """What the policy of ``state`` needs to act at ``slack``, under the constraints
-        of ``phase`` (by default the phase of the last update done, at most the
-        reference's: the learned policy once the run is over acts under the leaf's
-        constraints, or the last completion phase's)."""
+        """What the policy of ``state`` needs to act at ``slack`` under the constraints of
+        ``phase`` (by default the last update's, at most the reference's)."""
         if phase is None:
             phase = jnp.minimum(self.phase_of(jnp.maximum(state.update - 1, 0)),
                                 self.problem.reference)
@@ -324,12 +304,9 @@ class Trainer:
         return state, metrics
 
     def begin_phase(self, state: TrainState) -> TrainState:
-        """At a phase's first update: restart both optimisers, and carry the policy
-        over softened (logits divided by ``carry_temperature``) into every phase but
-        the first; at any other update, the state unchanged. Call it once per update,
-        between the rollout and :meth:`learn`: a phase's first rollout is the
-        previous policy's, sharp (measured against softening first: the fan of
-        tests/test_acceptance.py 9/10 seeds against 7/10)."""
+        """At a phase's first update, between its rollout (the previous policy's,
+        sharp) and :meth:`learn`: restart both optimisers and soften the policy
+        (logits divided by ``carry_temperature``); else the state unchanged."""
         phase = self.phase_of(state.update)
         first = state.update == jnp.asarray(self.phase_start)[phase]
         soften = first & (phase > 0)
@@ -367,12 +344,9 @@ class Trainer:
 
     def rollout_values(self, state: TrainState, rollout: Rollout
                        ) -> tuple[jax.Array, jax.Array]:
-        """Every head's ``V(s_t)`` and ``V(s_{t+1})`` over a rollout, ``[T, E, P]`` each,
-        in one batched critic call. ``s_{t+1}`` is the next step's observation unless
-        the episode ended at ``t``; the true ``final_obs`` is then needed only after a
-        truncation (a terminal state does not bootstrap) or at the last step, which
-        ``own_next`` slots per env hold, so the critics run on ``T + own_next`` rows
-        a copy instead of ``2 T``."""
+        """Every head's ``V(s_t)`` and ``V(s_{t+1})`` ``[T, E, P]`` in one critic call on
+        ``T + own_next`` rows a copy: ``s_{t+1}`` is the next step's observation, but
+        after a truncation and at the last step the true ``final_obs``."""
         obs, final_obs = rollout.obs, rollout.final_obs
         steps, envs = obs.shape[:2]
         needed = (rollout.done > rollout.terminated).at[-1].set(True)  # truncated, or last

@@ -1,9 +1,10 @@
-"""Layer 3: the multi-objective robot navigation domain.
+"""Layer 3: the multi-objective robot navigation domain, and finite TMDPs as envs.
 
 NumPy parts (maps, exact grid model, rendering) load eagerly; the JAX
-environments (:class:`GridNav`, :class:`ContinuousNav`) and their Gymnasium
-front ends (:class:`GridNavEnv`, :class:`ContinuousNavEnv`) load on first use.
-Importing this package registers the Gymnasium ids ``tpo/GridNav-home-v0`` etc.
+environments (:class:`GridNav`, :class:`ContinuousNav`, :class:`TabularEnv` over
+any finite TMDP) and their Gymnasium front ends load on first use, as does the
+generator of random TMDPs (:func:`random_tmdp`). Importing this package registers
+the Gymnasium ids ``tpo/GridNav-home-v0`` etc. and ``tpo/RandomTMDP-v0``.
 """
 
 from tpo.envs.grid_model import ACTIONS, GridModel, grid_model
@@ -18,11 +19,16 @@ _LAZY = {
     "ContinuousNavEnv": "tpo.envs.gym_envs",
     "make_env": "tpo.envs.spec",
     "from_spec": "tpo.envs.spec",
+    "TabularEnv": "tpo.envs.tabular_env",
+    "TabularGymEnv": "tpo.envs.tabular_env",
+    "random_tmdp": "tpo.envs.random_tmdp",
+    "RandomTMDP": "tpo.envs.random_tmdp",
 }
 
 __all__ = ["ACTIONS", "OBJECTIVES", "ContinuousNav", "ContinuousNavEnv", "GridModel",
-           "GridNav", "GridNavEnv", "NavMap", "bundled_maps", "from_spec", "grid_model",
-           "load_map", "make_env", "parse_map", "register_envs"]
+           "GridNav", "GridNavEnv", "NavMap", "RandomTMDP", "TabularEnv", "TabularGymEnv",
+           "bundled_maps", "from_spec", "grid_model", "load_map", "make_env", "parse_map",
+           "random_tmdp", "register_envs"]
 
 register_envs()
 

@@ -10,7 +10,8 @@ from tpo.envs.maps import bundled_maps
 
 def register_envs(maps: list[str] | None = None) -> list[str]:
     """Register ``tpo/GridNav-NAME-v0``, ``tpo/ContinuousNav-NAME-v0`` and
-    ``tpo/ContinuousNavHeading-NAME-v0`` for every map (default: the bundled ones).
+    ``tpo/ContinuousNavHeading-NAME-v0`` for every map (default: the bundled ones),
+    and ``tpo/RandomTMDP-v0`` (the arguments of :func:`tpo.envs.random_tmdp.random_tmdp`).
     Idempotent; returns the ids."""
     ids = []
     for name in bundled_maps() if maps is None else maps:
@@ -24,4 +25,7 @@ def register_envs(maps: list[str] | None = None) -> list[str]:
                 gym.register(env_id, entry_point=f"tpo.envs.gym_envs:{entry}",
                              kwargs={"map": name, **kwargs}, disable_env_checker=True)
             ids.append(env_id)
-    return ids
+    if "tpo/RandomTMDP-v0" not in gym.registry:  # gym.make("tpo/RandomTMDP-v0", seed=3, ...)
+        gym.register("tpo/RandomTMDP-v0", entry_point="tpo.envs.random_tmdp:random_gym_env",
+                     disable_env_checker=True)
+    return [*ids, "tpo/RandomTMDP-v0"]

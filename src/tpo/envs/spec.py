@@ -13,15 +13,19 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from tpo.envs.continuous import ContinuousNav
 from tpo.envs.grid import GridNav
 from tpo.envs.gym_adapter import EnvFactory, HostEnv, env_factory, host_env
 from tpo.envs.maps import load_map, parse_map
-from tpo.errors import MapError, TPOError
+from tpo.envs.random_tmdp import random_tmdp
+from tpo.envs.tabular_env import TabularEnv
+from tpo.errors import MapError, ModelError, TPOError
 from tpo.schema import Number, check_table
+from tpo.tabular import TabularTMDP
 
-Env = GridNav | ContinuousNav | HostEnv
+Env = GridNav | ContinuousNav | TabularEnv | HostEnv
 
 
 def make_env(env: Env | str | Path | gym.Env | gym.vector.VectorEnv | EnvFactory,
@@ -56,6 +60,13 @@ SPEC_KEYS: dict[str, dict[str, type | tuple[type, ...]]] = {
                    "n_beams": int, "max_range": Number, "max_steps": int,
                    "random_start": bool, "observation": str},
     "gym": {"id": str, "objectives": list},
+    "random_tmdp": {"seed": int, "states": int, "actions": int, "objectives": int,
+                    "dag": str, "stochastic": bool, "sparse": bool, "scale_spread": Number,
+                    "slack": list, "observation": str, "features": int, "gamma": Number,
+                    "max_steps": int, "random_start": bool},
+    "tabular": {"successors": list, "probs": list, "rewards": list, "terminal": list,
+                "objectives": list, "gamma": Number, "start": int,
+                "observations": (list, type(None)), "max_steps": int, "random_start": bool},
 }
 
 
@@ -85,6 +96,11 @@ def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int =
     if kind == "gym":
         return HostEnv(env_factory(spec["id"], trust_module=trust_module or False),
                        spec["objectives"], num_envs, env_id=spec["id"])
+    if kind in ("random_tmdp", "tabular"):
+        random_start = spec.pop("random_start") and not evaluation
+        if kind == "random_tmdp":
+            return random_tmdp(**spec).env(random_start)
+        return _tabular_env(spec, random_start)
     navmap = parse_map(spec.pop("map"))
     if evaluation:
         spec["random_start"] = False
@@ -92,3 +108,16 @@ def from_spec(spec: dict[str, Any], *, evaluation: bool = False, num_envs: int =
         return GridNav(navmap, **spec)
     if kind == "continuous":
         return ContinuousNav(navmap, **spec)
+
+
+def _tabular_env(spec: dict[str, Any], random_start: bool) -> TabularEnv:
+    """A :class:`TabularEnv` from its model's arrays (a ``tabular`` spec)."""
+    try:
+        model = TabularTMDP(np.asarray(spec["successors"]), np.asarray(spec["probs"], float),
+                            np.asarray(spec["rewards"], float), tuple(spec["objectives"]),
+                            spec["gamma"], spec["start"], np.asarray(spec["terminal"], bool))
+        table = None if spec["observations"] is None else np.asarray(spec["observations"],
+                                                                     np.float32)
+    except (ValueError, TypeError) as err:
+        raise ModelError(f"tabular env spec: {err}") from None
+    return TabularEnv(model, table, spec["max_steps"], random_start)

@@ -97,19 +97,27 @@ def _iterate(model: TabularTMDP, reward: np.ndarray, allowed: np.ndarray,
     for iteration in range(1, MAX_ITERATIONS + 1):
         change = sweep(values, spare)
         values, spare = spare, values
-        if change * gamma <= tol * (1 - gamma):
+        if change * gamma <= _bound(tol, gamma, values):
             return values, model.backup(reward, values), iteration
         if iteration >= next_polish:
             polishes += 1
             q = np.where(allowed, model.backup(reward, values), -np.inf)
             exact = evaluate_policy(model, np.argmax(q, axis=1), reward)[:, 0]
-            if sweep(exact, spare) <= tol * (1 - gamma):
+            if sweep(exact, spare) <= _bound(tol, gamma, exact):
                 return exact, model.backup(reward, exact), iteration
             values = exact  # V_pi <= V*, and value iteration from it rises monotonically
             # Keep polishing to about a quarter of the work spent sweeping (a
             # schedule of counts, not of clock time, so results are reproducible).
             next_polish = iteration + max(8, iteration // 4, int(4 * polishes * cost))
     raise TPOError(f"value iteration did not converge in {MAX_ITERATIONS} iterations")
+
+
+def _bound(tol: float, gamma: float, values: np.ndarray) -> float:
+    """The Bellman residual that proves ``|V - V*| <= tol``, but no less than the
+    rounding of a sweep (16 ulps of the largest value): at values of 1e4 (rewards of
+    100) a residual of ``tol (1 - gamma)`` = 1e-12 is below float64's reach."""
+    return max(tol * (1 - gamma), 16 * np.finfo(np.float64).eps * float(
+        np.max(np.abs(values), initial=0.0)))
 
 
 def _polish_cost(model: TabularTMDP) -> float:
