@@ -13,7 +13,7 @@ from tpo.envs.random_tmdp import random_tmdp
 from tpo.envs.spec import from_spec
 from tpo.envs.tabular_env import TabularEnv
 from tpo.errors import TPOError
-from tpo.tabular import TabularTMDP
+from tpo.tabular import TabularTMDP, solve_lar
 
 
 def reachable(model: TabularTMDP) -> np.ndarray:
@@ -134,3 +134,27 @@ def test_tpo_trains_on_a_generated_problem_and_is_judged_exactly(tmp_path):
     assert isinstance(result["lar_correct"], bool) and result["lar"]["feasible"] in (True, False)
     loaded = TPO.load(model.save(tmp_path / "m"))
     assert loaded.evaluate(episodes=4)["exact"] == result["exact"]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("c", [0.01, 100.0])
+def test_lar_is_unchanged_when_one_objective_and_its_slacks_are_rescaled(seed, c):
+    """Exact LAR of a feasible problem is scale-free: multiplying objective ``w``'s
+    rewards, and the slack of every edge out of ``w``, by ``c`` multiplies ``w``'s
+    values by ``c`` and changes no other value (value iteration converges at rewards
+    of scale 1e4 too). A chain is always feasible; the relaxation of an infeasible
+    problem sums violations of different objectives, and is not."""
+    problem = random_tmdp(seed, states=40, objectives=3, scale_spread=100.0,
+                          stochastic=True)
+    model, graph = problem.model, problem.graph
+    w = model.objectives.index(graph.order[0])  # a root: its slack matters to its children
+    rewards = model.rewards.copy()
+    rewards[..., w] *= c
+    scaled = TabularTMDP(model.successors, model.probs, rewards, model.objectives, model.gamma,
+                         model.start, model.terminal)
+    slacks = [e.slack * (c if e.parent == graph.order[0] else 1.0) for e in graph.edges]
+    before = solve_lar(model, graph).start_values()
+    after = solve_lar(scaled, graph.with_slack(slacks)).start_values()
+    for name, value in before.items():
+        factor = c if name == graph.order[0] else 1.0
+        assert after[name] == pytest.approx(factor * value, rel=1e-6, abs=1e-6 * factor)

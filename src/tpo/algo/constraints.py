@@ -144,16 +144,19 @@ def lagrangian_terms(terms: ConstraintTerms, phase: jax.Array, slack: jax.Array,
     each, from a rollout's env rewards ``reward [T, E, k]``, every frozen head's
     values ``value``, ``next_value [T, E, P]`` and its flags ``[T, E]``.
 
-    With ``r = r_i`` the phase's reward, ``A_w`` each head's one-step advantage and
-    ``c_t`` :func:`penalty`'s sum of violations::
+    With ``r = r_i`` the phase's reward, ``A_h`` each head's one-step advantage,
+    ``c_t`` :func:`penalty`'s sum of violations and ``G = gamma lambda``::
 
-        A_t = GAE(r_t) - beta sum_l (decay)^l c_{t+l}        (Eq. 10, config.advantage)
-            + sum_l (gamma lambda)^l clip(sum_h tie_ih A_h)  (tie-break, ancestors' critics)
+        traced:     A_t = GAE(r)_t - beta sum_l decay^l c_{t+l}    (Eq. 10's penalty,
+        immediate:  A_t = GAE(r)_t - beta c_t                       the critic on r)
+        penalized:  A_t = GAE(r - beta c)_t                         (the critic on it)
+        tie-break:  A_t += sum_l G^l clip(sum_h tie_ih A_h, +-tie_bound_i)
 
-    where ``tie_critic = "leaf"`` adds ``sum_h tie_ih r_h`` to ``r`` instead, and
-    the critic's target is ``GAE(r_t) + V_i(s_t)``. An exploring step (the
-    restriction form's) cuts the trace of the steps before it. ``loose_tolerance``
-    and ``trace_decay`` are :func:`loose_tolerance`'s and :func:`trace_decay`'s.
+    where ``tie_critic = "leaf"`` adds ``sum_h tie_ih r_h`` to ``r`` instead of the
+    tie-break term. The critic's target is ``GAE(r)_t + V_i(s_t)`` (``penalized``:
+    of ``r - beta c``). An exploring step (the restriction form's) cuts the
+    trace of the steps before it. ``loose_tolerance`` and ``trace_decay`` are
+    :func:`loose_tolerance`'s and :func:`trace_decay`'s.
     """
     pick = jax.nn.one_hot(phase, len(terms.reward))
     rewards = reward[..., jnp.asarray(terms.reward)]

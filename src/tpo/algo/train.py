@@ -1,14 +1,13 @@
 """Topological policy optimization (paper Algorithm 1), end to end in JAX.
 
 One policy, one critic head per phase. Objectives are trained in topological
-order, one PPO phase each, and after its phase a head is frozen. A phase keeps
-its ancestors' slacks in one of two forms (``TPOConfig.constraint``,
-docs/design.md §5): the paper's penalty, the generalized Lagrangian advantages
-of :mod:`tpo.algo.lagrangian` read from the frozen critics; or the restriction,
-sampling only the actions that LAR's rule admits on the frozen critics'
-advantage outputs; then the extra phases of :class:`tpo.algo.phases.Problem`
-(the completion, or a fan's roots' completion). With a one-objective
-graph this is plain PPO, the baseline, in the same code.
+order, one PPO phase each, and after its phase a head is frozen; then the extra
+phases of :class:`tpo.algo.phases.Problem` (the completion, or a fan's roots'
+completion). A phase learns from the constraint terms of
+:mod:`tpo.algo.constraints` and keeps its ancestors' slacks in a form of
+:mod:`tpo.algo.forms` (the paper's penalty, or the restriction to LAR's
+admissible actions); the run's answer is selected by :mod:`tpo.algo.selection`.
+With a one-objective graph this is plain PPO, the baseline, in the same code.
 
 The whole run is a loop over updates; the phase of an update is a traced
 number, so one compiled update serves every phase and the run is a single

@@ -3,7 +3,7 @@
 NumPy parts (maps, exact grid model, rendering) load eagerly; the JAX
 environments (:class:`GridNav`, :class:`ContinuousNav`, :class:`TabularEnv` over
 any finite TMDP) and their Gymnasium front ends load on first use, as does the
-generator of random TMDPs (:func:`random_tmdp`). Importing this package registers
+generator of random TMDPs (:mod:`tpo.envs.random_tmdp`). Importing this package registers
 the Gymnasium ids ``tpo/GridNav-home-v0`` etc. and ``tpo/RandomTMDP-v0``.
 """
 
@@ -21,14 +21,13 @@ _LAZY = {
     "from_spec": "tpo.envs.spec",
     "TabularEnv": "tpo.envs.tabular_env",
     "TabularGymEnv": "tpo.envs.tabular_env",
-    "random_tmdp": "tpo.envs.random_tmdp",
     "RandomTMDP": "tpo.envs.random_tmdp",
 }
 
 __all__ = ["ACTIONS", "OBJECTIVES", "ContinuousNav", "ContinuousNavEnv", "GridModel",
            "GridNav", "GridNavEnv", "NavMap", "RandomTMDP", "TabularEnv", "TabularGymEnv",
            "bundled_maps", "from_spec", "grid_model", "load_map", "make_env", "parse_map",
-           "random_tmdp", "register_envs"]
+           "register_envs"]
 
 register_envs()
 

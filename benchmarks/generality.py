@@ -1,0 +1,113 @@
+"""Does TPO keep its priorities on problems nobody tuned it for? Generated TMDPs,
+trained as a user would (the defaults a user gets, a given budget) and judged
+exactly on their models.
+
+    python benchmarks/generality.py --problems 100 --steps 1000000
+    python benchmarks/generality.py --problems 4 --steps 100000 --json out.json
+
+Problem ``i`` is ``random_tmdp`` with seed ``i`` and a shape drawn from seed
+``i`` as well (states 10-200, actions 2-8, objectives 2-4, chain, fan or DAG,
+deterministic or stochastic, dense or sparse, one-hot or embedded
+observations), so the list is fixed by the code. Each learned policy gets the
+three verdicts of ``tpo.tabular.Judge``; a failure is broken down as an
+ancestor below its floor, the leaf below its optimum, or both. Beside each
+problem, plain PPO's reach of each objective alone at the same budget (with
+``--ppo``): ``(v - v_uniform) / (v* - v_uniform)`` of its exact greedy value,
+which separates what PPO cannot reach at all (exploration) from what TPO's
+constraints lose.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from tpo.algo import TPO
+from tpo.envs.random_tmdp import random_tmdp
+from tpo.graph import ObjectiveGraph
+from tpo.tabular import Judge, evaluate_policy, solve_lar, tolerance
+
+
+def shape(i: int) -> dict:
+    """Problem ``i``'s generator arguments (drawn from seed ``i``)."""
+    rng = np.random.default_rng([i, 59])
+    return {"states": int(rng.integers(10, 201)), "actions": int(rng.integers(2, 9)),
+            "objectives": int(rng.integers(2, 5)),
+            "dag": str(rng.choice(["chain", "fan", "dag"])),
+            "stochastic": bool(rng.uniform() < 0.5), "sparse": bool(rng.uniform() < 0.5),
+            "observation": str(rng.choice(["onehot", "embedding"]))}
+
+
+def greedy(model: TPO, problem) -> np.ndarray:
+    """The learned greedy action of every state of the problem's model."""
+    obs = problem.observations
+    return np.asarray(model.predict(obs)).astype(np.int64)
+
+
+def reach(problem, steps: int, seed: int) -> dict[str, float]:
+    """Plain PPO's reach of each objective alone: ``(v - v_uniform) / (v* - v_uniform)``."""
+    m = problem.model
+    uniform = evaluate_policy(m, np.full((m.n_states, m.n_actions), 1 / m.n_actions))
+    out = {}
+    for i, name in enumerate(m.objectives):
+        alone = ObjectiveGraph((name,))
+        best = solve_lar(m, alone).start_values()[name]
+        learner = TPO(problem.env(random_start=True), alone, seed=seed).learn(steps)
+        value = evaluate_policy(m, greedy(learner, problem))[m.start, i]
+        base = uniform[m.start, i]
+        out[name] = float((value - base) / (best - base)) if best > base else 1.0
+    return out
+
+
+def case(i: int, steps: int, population: int, ppo: bool) -> dict:
+    problem = random_tmdp(i, **shape(i))
+    start = time.perf_counter()
+    model = TPO(problem.env(random_start=True), problem.graph, seed=i,
+                population=population).learn(steps)
+    seconds = time.perf_counter() - start
+    lar = solve_lar(problem.model, problem.graph, relax=True)
+    verdict = Judge(lar)(greedy(model, problem))
+    leaf = problem.graph.leaf
+    below_floor = [w for w, f in verdict.floors.items()
+                   if verdict.values[w] < f - float(tolerance(f))]
+    leaf_short = verdict.values[leaf] < verdict.optimum - float(tolerance(verdict.optimum))
+    failure = ("" if verdict.lar_correct else "both" if below_floor and leaf_short
+               else "ancestor below floor" if below_floor else "leaf below optimum")
+    row = {"problem": i, **shape(i), "feasible": verdict.feasible,
+           "lar_correct": verdict.lar_correct, "strict": verdict.strict,
+           "same_values": verdict.same_values, "failure": failure,
+           "below_floor": below_floor, "seconds": round(seconds, 1)}
+    if ppo:
+        row["ppo_reach"] = reach(problem, steps, i)
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--problems", type=int, default=100)
+    parser.add_argument("--first", type=int, default=0, help="the first problem's index")
+    parser.add_argument("--steps", type=int, default=1_000_000)
+    parser.add_argument("--population", type=int, default=4)
+    parser.add_argument("--ppo", action="store_true", help="plain PPO's reach beside each")
+    parser.add_argument("--json", help="write the rows to this file")
+    args = parser.parse_args()
+    rows = []
+    for i in range(args.first, args.first + args.problems):
+        row = case(i, args.steps, args.population, args.ppo)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    n = len(rows)
+    for verdict in ("lar_correct", "strict", "same_values"):
+        print(f"{verdict}: {sum(r[verdict] for r in rows)}/{n}")
+    for kind in ("ancestor below floor", "leaf below optimum", "both"):
+        print(f"  failures, {kind}: {sum(r['failure'] == kind for r in rows)}")
+    if args.json:
+        with open(args.json, "x") as f:  # never replaces a file
+            json.dump(rows, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
