@@ -44,7 +44,7 @@ def test_a_model_saved_before_the_margin_existed_loads_without_it(model, tmp_pat
     path = model.save(tmp_path / "run")
     meta = json.loads((path / "model.json").read_text())
     del meta["config"]["margin"], meta["config"]["tie_break"]
-    (path / "model.json").write_text(json.dumps(meta))
+    (path / "model.json").write_text(json.dumps({**meta, "format": 7}))  # as 0.2 wrote it
     loaded = TPO.load(path).config
     assert (loaded.margin, loaded.tie_break) == (0.0, 0.0)
     assert (TPOConfig.from_dict({}).margin, TPOConfig.from_dict({}).tie_break) == (0.15, 0.1)
@@ -56,7 +56,7 @@ def test_a_fan_saved_before_the_roots_completion_loads_with_its_three_phases(tmp
     path = model.save(tmp_path / "run")
     meta = json.loads((path / "model.json").read_text())
     del meta["config"]["roots_completion"]  # as tpo wrote it before the field
-    (path / "model.json").write_text(json.dumps(meta))
+    (path / "model.json").write_text(json.dumps({**meta, "format": 7}))
     loaded = TPO.load(path)
     assert loaded.phases == ("avoid", "monitor", "goal")
     obs = model.eval_env.tabular_observations()
