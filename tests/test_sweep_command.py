@@ -77,6 +77,10 @@ def test_the_exact_curve_is_lars_at_every_slack(tmp_path, capsys):
      "'x'; got '0,y'"),
     (["--slack", "0,1", "--exact-only", "--seeds", "3"], "--exact-only trains nothing: drop "
                                                         "--seeds"),
+    (["--slack", "0,1", "--exact-only", "--profile", "paper"],
+     "--exact-only trains nothing: drop --profile"),
+    (["--slack", "0,1", "--profile", "paper,fast"],
+     "unknown profile 'fast': choose from grid, continuous, penalty, restriction, paper"),
     (["--slack", "0,1", "--address", "auto"], "--address and --storage are options of "
                                               "--backend ray"),
     (["--slack", "0,1", "--seeds", "0"], "--seeds must be from 1 to 1000, got 0"),

@@ -436,7 +436,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               if getattr(args, k) is not None}
     config = read_fields(args, TPOConfig)
     if args.exact_only:  # gamma is part of the exact problem; the rest trains
-        given = [*budget, *(k for k in ("backend", "workers", "address", "storage")
+        given = [*budget, *(k for k in ("backend", "workers", "address", "storage", "profile")
                             if getattr(args, k) is not None), *(k for k in config if k != "gamma")]
         if given:
             raise UsageError(f"--exact-only trains nothing: drop --{given[0].replace('_', '-')}")
