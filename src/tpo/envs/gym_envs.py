@@ -16,28 +16,17 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-import gymnasium as gym
-import jax
 import numpy as np
 from gymnasium import spaces
 
-from tpo.envs.base import JaxEnv
+from tpo.envs.base import JaxGymEnv
 from tpo.envs.continuous import ContinuousNav
 from tpo.envs.grid import GridNav
 from tpo.envs.maps import NavMap, load_map
 from tpo.envs.render import draw_robot, raster
 
-_JITTED: dict[type, tuple[Any, Any]] = {}
 
-
-def _compiled(cls: type[JaxEnv]) -> tuple[Any, Any]:
-    """Jitted ``reset`` and ``step_env`` of an env class, shared by all its instances."""
-    if cls not in _JITTED:
-        _JITTED[cls] = (jax.jit(cls.reset), jax.jit(cls.step_env))
-    return _JITTED[cls]
-
-
-class NavEnv(gym.Env):
+class NavEnv(JaxGymEnv):
     """A Gymnasium env stepping a pure JAX navigation env one transition at a time."""
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -47,46 +36,10 @@ class NavEnv(gym.Env):
                  action_space: spaces.Space, render_mode: str | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        self.jax_env = jax_env
+        super().__init__(jax_env, observation_space, action_space)
         self.navmap: NavMap = jax_env.navmap
-        self.observation_space = observation_space
-        self.action_space = action_space
-        self.reward_space = spaces.Box(jax_env.reward_low, jax_env.reward_high, dtype=np.float32)
-        self.reward_dim = 3
-        self.objectives = jax_env.objectives
         self.render_mode = render_mode
-        self._reset, self._step = _compiled(type(jax_env))
-        self._state = None
         self._background = raster(self.navmap, self.CELL_PX)
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        del state["_reset"], state["_step"]  # jitted functions; rebuilt on unpickling
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._reset, self._step = _compiled(type(self.jax_env))
-
-    def _key(self) -> jax.Array:
-        return jax.random.key(int(self.np_random.integers(2**31)))
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None
-              ) -> tuple[np.ndarray, dict]:
-        super().reset(seed=seed)
-        obs, self._state = self._reset(self._key(), self.jax_env.params)
-        return np.asarray(obs), {}
-
-    def step(self, action: Any) -> tuple[np.ndarray, np.ndarray, bool, bool, dict]:
-        if self._state is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        obs, self._state, reward, terminated, truncated = self._step(
-            self._key(), self._state, self._jax_action(action), self.jax_env.params)
-        return (np.asarray(obs), np.asarray(reward, np.float32), bool(terminated),
-                bool(truncated), {})
-
-    def _jax_action(self, action: Any) -> Any:
-        return np.int32(action)
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from tpo.envs.base import JaxEnv
+from tpo.envs.base import JaxEnv, JaxGymEnv
 from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import TabularTMDP
@@ -148,39 +148,18 @@ class TabularEnv(JaxEnv):
         return np.asarray(self.params.obs_table)
 
 
-class TabularGymEnv(gym.Env):
+class TabularGymEnv(JaxGymEnv):
     """A Gymnasium front end of a :class:`TabularEnv` with MO-Gymnasium's vector
-    reward (``reward_space``, ``reward_dim``); the observation is the state's row of
-    the env's table, and ``graph`` the problem's DAG if it has one."""
+    reward; the observation is the state's row of the env's table, ``info["state"]``
+    the state's index, and ``graph`` the problem's DAG if it has one."""
 
     metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 (Gymnasium's own)
 
     def __init__(self, jax_env: TabularEnv, graph: ObjectiveGraph | None = None) -> None:
-        self.jax_env, self.graph = jax_env, graph
         d = jax_env.obs_shape[0]
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (d,), np.float32)
-        self.action_space = jax_env.action_space
-        self.reward_space = gym.spaces.Box(jax_env.reward_low, jax_env.reward_high,
-                                           dtype=np.float32)
-        self.reward_dim = len(jax_env.objectives)
-        self.objectives = jax_env.objectives
-        self._reset = jax.jit(TabularEnv.reset)
-        self._step = jax.jit(TabularEnv.step_env)
-        self._state: TabularState | None = None
+        super().__init__(jax_env, gym.spaces.Box(-np.inf, np.inf, (d,), np.float32),
+                         jax_env.action_space)
+        self.graph = graph
 
-    def _key(self) -> jax.Array:
-        return jax.random.key(int(self.np_random.integers(2**31)))
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None
-              ) -> tuple[np.ndarray, dict]:
-        super().reset(seed=seed)
-        obs, self._state = self._reset(self._key(), self.jax_env.params)
-        return np.asarray(obs), {"state": int(self._state.state)}
-
-    def step(self, action: Any) -> tuple[np.ndarray, np.ndarray, bool, bool, dict]:
-        if self._state is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        obs, self._state, reward, terminated, truncated = self._step(
-            self._key(), self._state, np.int32(action), self.jax_env.params)
-        return (np.asarray(obs), np.asarray(reward, np.float32), bool(terminated),
-                bool(truncated), {"state": int(self._state.state)})
+    def _info(self) -> dict[str, Any]:
+        return {"state": int(self._state.state)}
