@@ -4,6 +4,7 @@ exactly on their models.
 
     python benchmarks/generality.py --problems 100 --steps 1000000
     python benchmarks/generality.py --problems 4 --steps 100000 --json out.json
+    python benchmarks/generality.py --problems 0 --mo-gym host   # MO-Gymnasium's envs
 
 Problem ``i`` is ``random_tmdp`` with seed ``i`` and a shape drawn from seed
 ``i`` as well (states 10-200, actions 2-8, objectives 2-4, chain, fan or DAG,
@@ -15,11 +16,18 @@ problem, plain PPO's reach of each objective alone at the same budget (with
 ``--ppo``): ``(v - v_uniform) / (v* - v_uniform)`` of its exact greedy value,
 which separates what PPO cannot reach at all (exploration) from what TPO's
 constraints lose.
+
+With ``--mo-gym host`` (or ``jax``), MO-Gymnasium's finite envs
+(:data:`MO_GYM`: each env's DAGs at slacks of 0, 10 % and 50 % of the parent's
+value range at the start) are trained on the env itself stepped on the host, as
+a user would (or on its stepped model served as a JAX env), and judged on the
+env's stepped model (``tpo.envs.stepped_model``).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -27,6 +35,7 @@ import numpy as np
 
 from tpo.algo import TPO
 from tpo.envs.random_tmdp import random_tmdp
+from tpo.envs.stepped_model import mo_gym_model
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import Judge, evaluate_policy, solve_lar, tolerance
 
@@ -39,6 +48,19 @@ def shape(i: int) -> dict:
             "dag": str(rng.choice(["chain", "fan", "dag"])),
             "stochastic": bool(rng.uniform() < 0.5), "sparse": bool(rng.uniform() < 0.5),
             "observation": str(rng.choice(["onehot", "embedding"]))}
+
+
+#: MO-Gymnasium's finite envs and the DAGs of their cases.
+MO_GYM = {
+    "deep-sea-treasure-v0": ("treasure>time", "time>treasure"),
+    "deep-sea-treasure-concave-v0": ("treasure>time", "time>treasure"),
+    "resource-gathering-v0": ("gem>gold>enemy", "enemy>gold>gem", "enemy>gem, gold>gem"),
+    "breakable-bottles-v0": ("bottles>time>impact", "impact>bottles>time",
+                             "impact>time, bottles>time"),
+    "fruit-tree-v0": ("nutrient1>nutrient2>nutrient3", "nutrient4>nutrient5",
+                      "nutrient1>nutrient6, nutrient2>nutrient6"),
+}
+SHARES = (0.0, 0.1, 0.5)  # of the parent's value range at the start
 
 
 def greedy(model: TPO, problem) -> np.ndarray:
@@ -62,27 +84,64 @@ def reach(problem, steps: int, seed: int) -> dict[str, float]:
     return out
 
 
+def verdict_row(problem, model: TPO, graph: ObjectiveGraph) -> dict:
+    """The three verdicts of a learned policy on its problem's model, and its failure."""
+    lar = solve_lar(problem.model, graph, relax=True)
+    verdict = Judge(lar)(greedy(model, problem))
+    below_floor = [w for w, f in verdict.floors.items()
+                   if verdict.values[w] < f - float(tolerance(f))]
+    leaf_short = verdict.values[graph.leaf] < verdict.optimum - float(
+        tolerance(verdict.optimum))
+    failure = ("" if verdict.lar_correct else "both" if below_floor and leaf_short
+               else "ancestor below floor" if below_floor else "leaf below optimum")
+    return {"feasible": verdict.feasible, "lar_correct": verdict.lar_correct,
+            "strict": verdict.strict, "same_values": verdict.same_values,
+            "failure": failure, "below_floor": below_floor}
+
+
 def case(i: int, steps: int, population: int, ppo: bool) -> dict:
     problem = random_tmdp(i, **shape(i))
     start = time.perf_counter()
     model = TPO(problem.env(random_start=True), problem.graph, seed=i,
                 population=population).learn(steps)
-    seconds = time.perf_counter() - start
-    lar = solve_lar(problem.model, problem.graph, relax=True)
-    verdict = Judge(lar)(greedy(model, problem))
-    leaf = problem.graph.leaf
-    below_floor = [w for w, f in verdict.floors.items()
-                   if verdict.values[w] < f - float(tolerance(f))]
-    leaf_short = verdict.values[leaf] < verdict.optimum - float(tolerance(verdict.optimum))
-    failure = ("" if verdict.lar_correct else "both" if below_floor and leaf_short
-               else "ancestor below floor" if below_floor else "leaf below optimum")
-    row = {"problem": i, **shape(i), "feasible": verdict.feasible,
-           "lar_correct": verdict.lar_correct, "strict": verdict.strict,
-           "same_values": verdict.same_values, "failure": failure,
-           "below_floor": below_floor, "seconds": round(seconds, 1)}
+    row = {"problem": i, **shape(i), **verdict_row(problem, model, problem.graph),
+           "seconds": round(time.perf_counter() - start, 1)}
     if ppo:
         row["ppo_reach"] = reach(problem, steps, i)
     return row
+
+
+def value_range(m, name: str) -> float:
+    """``max - min`` over policies of objective ``name``'s value at the start."""
+    alone = ObjectiveGraph((name,))
+    worst = dataclasses.replace(m, rewards=-m.rewards)
+    return solve_lar(m, alone).start_values()[name] + solve_lar(worst, alone).start_values()[name]
+
+
+def mo_gym_cases() -> list[tuple[str, ObjectiveGraph, float]]:
+    """``(env id, DAG with its slacks, share)`` of every MO-Gymnasium case: each edge's
+    global slack is the share of its parent's value range (local slack: times 1 - gamma)."""
+    cases = []
+    for env_id, dags in MO_GYM.items():
+        m = mo_gym_model(env_id).model
+        for dag in dags:
+            graph = ObjectiveGraph.parse(dag, 0.0).bind(m.objectives)
+            for share in SHARES:
+                slacks = [(1 - m.gamma) * share * value_range(m, e.parent) for e in graph.edges]
+                cases.append((env_id, graph.with_slack(slacks), share))
+    return cases
+
+
+def mo_gym_case(env_id: str, graph: ObjectiveGraph, share: float, steps: int,
+                population: int, path: str, seed: int) -> dict:
+    stepped = mo_gym_model(env_id)
+    env = f"mo-gymnasium:{env_id}" if path == "host" else stepped.env()
+    start = time.perf_counter()
+    model = TPO(env, graph, objectives=stepped.model.objectives, seed=seed,
+                population=population).learn(steps)
+    return {"env": env_id, "dag": graph.spec, "share": share, "path": path,
+            **verdict_row(stepped, model, graph),
+            "seconds": round(time.perf_counter() - start, 1)}
 
 
 def main() -> None:
@@ -92,13 +151,18 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1_000_000)
     parser.add_argument("--population", type=int, default=4)
     parser.add_argument("--ppo", action="store_true", help="plain PPO's reach beside each")
+    parser.add_argument("--mo-gym", choices=("host", "jax"),
+                        help="also MO-Gymnasium's cases, on the env (host) or its model (jax)")
     parser.add_argument("--json", help="write the rows to this file")
     args = parser.parse_args()
     rows = []
     for i in range(args.first, args.first + args.problems):
-        row = case(i, args.steps, args.population, args.ppo)
-        rows.append(row)
-        print(json.dumps(row), flush=True)
+        rows.append(case(i, args.steps, args.population, args.ppo))
+        print(json.dumps(rows[-1]), flush=True)
+    for j, (env_id, graph, share) in enumerate(mo_gym_cases() if args.mo_gym else ()):
+        rows.append(mo_gym_case(env_id, graph, share, args.steps, args.population,
+                                args.mo_gym, j))
+        print(json.dumps(rows[-1]), flush=True)
     n = len(rows)
     for verdict in ("lar_correct", "strict", "same_values"):
         print(f"{verdict}: {sum(r[verdict] for r in rows)}/{n}")

@@ -50,15 +50,15 @@ class GrowingObservation(TwoRewards):
         return np.zeros(2 if self.t < 2 else 3, np.float32)
 
 
-class DictObservation(TwoRewards):
-    observation_space = spaces.Dict({"x": spaces.Discrete(3)})
+class SequenceObservation(TwoRewards):
+    observation_space = spaces.Sequence(spaces.Discrete(3))
 
 
 class MultiDiscreteAction(TwoRewards):
     action_space = spaces.MultiDiscrete([2, 2])
 
 
-for _cls in (NanReward, WideReward, GrowingObservation, DictObservation, MultiDiscreteAction):
+for _cls in (NanReward, WideReward, GrowingObservation, SequenceObservation, MultiDiscreteAction):
     if f"{_cls.__name__}-v0" not in gym.registry:
         gym.register(f"{_cls.__name__}-v0", entry_point=_cls,
                      disable_env_checker=True)

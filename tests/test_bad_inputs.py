@@ -126,7 +126,7 @@ CASES = [
           ("WideReward", "WideReward-v0 returned a reward of shape (3,) for 2 objectives"),
           ("GrowingObservation", "GrowingObservation-v0's observation shape changed from "
                                  "(2,) to (3,)"),
-          ("DictObservation", "TPO supports Box and Discrete observations"),
+          ("SequenceObservation", "TPO supports Box, Discrete and what gymnasium"),
           ("MultiDiscreteAction", "TPO supports Discrete and 1-D Box actions"))],
 ]
 

@@ -6,7 +6,8 @@ them the way the learner reads an env: ``objectives``, reward bounds,
 ``obs_shape`` and ``action_space``. The reward vector's components are named by
 the user (``objectives``), in order.
 
-Observations: ``Box`` (flattened to float32) or ``Discrete`` (one-hot).
+Observations: ``Box`` (flattened to float32), ``Discrete`` (one-hot), or a
+composite space flattened as ``gymnasium.spaces.flatten`` does.
 Actions: ``Discrete`` or 1-D ``Box`` (Gaussian samples clipped to the bounds).
 """
 
@@ -91,7 +92,7 @@ class HostEnv:
 
     def __init__(self, make: EnvFactory, objectives: Sequence[str], num_envs: int,
                  env_id: str | None = None, envs: Sequence[gym.Env] | None = None) -> None:
-        make = self.make = _quiet(make)
+        make = self.make = quiet(make)
         self.env_id = env_id
         probe = envs[0] if envs else make()
         self.name = _name(probe)
@@ -108,7 +109,7 @@ class HostEnv:
                            f"({', '.join(self.objectives)})")
         self.reward_low = np.asarray(reward_space.low, np.float32).reshape(-1)
         self.reward_high = np.asarray(reward_space.high, np.float32).reshape(-1)
-        self._encode, self.obs_shape = _observation_encoder(probe.observation_space,
+        self._encode, self.obs_shape = observation_encoder(probe.observation_space,
                                                             self.name)
         #: a Discrete observation's one-hot is one block of one 1 (see GridNav's)
         self.observation_onehots = (((0, self.obs_shape[0]),) if isinstance(
@@ -185,7 +186,7 @@ class HostEnv:
             env.close()
 
 
-def _quiet(make: EnvFactory) -> EnvFactory:
+def quiet(make: EnvFactory) -> EnvFactory:
     """``make`` without Gymnasium's warning that a float64 Box bound was cast to
     float32 (MO-Gymnasium's envs declare their reward spaces so: harmless noise
     on every copy)."""
@@ -200,16 +201,30 @@ def _name(env: gym.Env) -> str:
     return env.spec.id if env.spec is not None else type(env.unwrapped).__name__
 
 
-def _observation_encoder(space: gym.Space, name: str
-                         ) -> tuple[Callable[[Any], np.ndarray], tuple[int]]:
+def observation_encoder(space: gym.Space, name: str
+                        ) -> tuple[Callable[[Any], np.ndarray], tuple[int]]:
+    """``(encode, (D,))``: an observation of ``space`` -> the policy's float32 input.
+    ``Box`` is flattened, ``Discrete`` one-hot; ``Dict``, ``Tuple``, ``MultiBinary``
+    and ``MultiDiscrete`` are flattened the way ``gymnasium.spaces.flatten`` does
+    (each ``Discrete`` inside one-hot)."""
     if isinstance(space, gym.spaces.Box):
         size = int(np.prod(space.shape))
         return (lambda o: np.asarray(o, np.float32).reshape(-1)), (size,)
     if isinstance(space, gym.spaces.Discrete):
         n, start = int(space.n), int(space.start)
         return (lambda o: np.eye(n, dtype=np.float32)[int(o) - start]), (n,)
-    raise EnvError(f"{name} has observation space {space}: TPO supports Box and Discrete "
-                   "observations (flatten or wrap others)")
+    if isinstance(space, (gym.spaces.Dict, gym.spaces.Tuple, gym.spaces.MultiBinary,
+                          gym.spaces.MultiDiscrete)):
+        try:
+            size = int(gym.spaces.flatdim(space))
+        except (ValueError, NotImplementedError) as err:
+            raise EnvError(f"{name} has observation space {space}, which cannot be "
+                           f"flattened: {err}") from None
+        return (lambda o: np.asarray(gym.spaces.flatten(space, o), np.float32).reshape(-1)
+                ), (size,)
+    raise EnvError(f"{name} has observation space {space}: TPO supports Box, Discrete "
+                   "and what gymnasium.spaces.flatten flattens (Dict, Tuple, MultiBinary, "
+                   "MultiDiscrete); wrap others")
 
 
 def host_env(env: str | gym.Env | gym.vector.VectorEnv | EnvFactory,
