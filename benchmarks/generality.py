@@ -96,7 +96,10 @@ def verdict_row(problem, model: TPO, graph: ObjectiveGraph) -> dict:
                else "ancestor below floor" if below_floor else "leaf below optimum")
     return {"feasible": verdict.feasible, "lar_correct": verdict.lar_correct,
             "strict": verdict.strict, "same_values": verdict.same_values,
-            "failure": failure, "below_floor": below_floor}
+            "failure": failure, "below_floor": below_floor,
+            "values": {w: round(float(x), 4) for w, x in verdict.values.items()},
+            "floors": {w: round(float(x), 4) for w, x in verdict.floors.items()},
+            "optimum": round(float(verdict.optimum), 4)}
 
 
 def case(i: int, steps: int, population: int, ppo: bool) -> dict:

@@ -117,6 +117,32 @@ def test_plain_ppo_and_tpo_learn_a_host_env_and_save_and_load(tmp_path):
     assert loaded.resume().finished
 
 
+def test_a_host_population_steps_its_own_copies_answers_with_one_and_resumes(tmp_path):
+    """Members are stacked, each stepping 4 of the env's 2 x 4 copies; the run's end
+    answers with one member; a model saved mid-run resumes to its end."""
+    seen = []
+
+    def callback(metrics, done):
+        seen.append((done, model.stacked, metrics["phase"].shape))
+        if done == 2:
+            model.save(tmp_path / "mid")
+
+    model = TPO("mo-gymnasium:deep-sea-treasure-v0", "treasure>time", slack=0.0,
+                objectives=["treasure", "time"], config=SMALL, seed=3, population=2)
+    assert model.env.num_envs == 2 * SMALL.num_envs
+    model.learn(SMALL.batch_size * 4, callback, chunk_updates=2)
+    assert seen == [(2, True, (2,)), (4, False, (2,))]
+    assert model.finished and np.ndim(model.state.update) == 0
+    assert model.state.obs.shape == (SMALL.num_envs, 2)  # the answering member's copies
+    mid = TPO.load(tmp_path / "mid")
+    assert mid.population == 2 and mid.stacked and mid.updates_done == 2
+    assert mid.state.obs.shape == (2, SMALL.num_envs, 2)
+    resumed = mid.resume(chunk_updates=2)
+    assert resumed.finished and not resumed.stacked and resumed.num_timesteps == \
+        model.num_timesteps
+    assert resumed.predict(np.array([[0, 0], [1, 0], [2, 1]], np.int32)).shape == (3,)
+
+
 def test_cli_trains_a_gymnasium_env_into_a_run_directory(tmp_path, capsys):
     from tpo.cli.main import main
 

@@ -30,13 +30,14 @@ class EpisodeStats:
                    jnp.zeros(k), jnp.zeros(()))
 
     def update(self, reward: Any, done: Any) -> EpisodeStats:
-        """After one step of every env: ``reward [E, k]``, ``done [E]`` (float; the
-        episode ended, terminated or truncated)."""
+        """After one step of every env: ``reward [..., E, k]``, ``done [..., E]``
+        (float; the episode ended, terminated or truncated); leading axes are
+        independent learners' (a population's members)."""
         returns, lengths = self.returns + reward, self.lengths + 1
-        return EpisodeStats(returns * (1 - done[:, None]), lengths * (1 - done),
-                            self.finished + done.sum(),
-                            self.finished_return + (returns * done[:, None]).sum(0),
-                            self.finished_length + (lengths * done).sum())
+        return EpisodeStats(returns * (1 - done[..., None]), lengths * (1 - done),
+                            self.finished + done.sum(-1),
+                            self.finished_return + (returns * done[..., None]).sum(-2),
+                            self.finished_length + (lengths * done).sum(-1))
 
     def clear(self) -> EpisodeStats:
         """The same episodes in progress, no finished ones counted."""

@@ -44,23 +44,40 @@ def jax_runner(trainer: Trainer, population: bool = False) -> Runner:
 
 class HostRunner:
     """Runs :class:`Trainer` updates on rollouts of a :class:`HostEnv`, and plays its
-    episodes for evaluation and the end-of-run selection."""
+    episodes for evaluation and the end-of-run selection.
 
-    def __init__(self, trainer: Trainer, env: HostEnv) -> None:
-        self.trainer, self.env = trainer, env
+    With ``members`` ``M``, the state is a population's members stacked ``[M, ...]``,
+    each stepping its own ``N`` of the env's ``M * N`` copies; acting and learning
+    are vmapped over the members (one JAX call per step for all of them)."""
+
+    def __init__(self, trainer: Trainer, env: HostEnv, members: int = 0) -> None:
+        self.trainer, self.env, self.members = trainer, env, members
 
         def act(acting: Acting, obs: jax.Array, key_data: jax.Array, greedy: jax.Array):
             pi = trainer.policy(acting, obs)
             return jnp.where(greedy, pi.mode(), pi.sample(jax.random.wrap_key_data(key_data)))
 
+        def prepare(state: TrainState, slack: jax.Array):
+            """The rollout's acting, the state's next key, one key per step."""
+            acting = trainer.acting(state, slack, trainer.phase_of(state.update))
+            key, k_roll = jax.random.split(state.key)
+            return acting, key, jax.random.key_data(
+                jax.random.split(k_roll, trainer.config.num_steps))
+
+        def behave(acting: Acting, obs: jax.Array, key_data: jax.Array):
+            return trainer.behave(acting, obs, jax.random.wrap_key_data(key_data))
+
+        def each(f: Callable, *axes: int | None) -> Callable:  # over the members
+            return jax.vmap(f, in_axes=axes or 0) if members else f
+
         # Keys travel as raw key data (NumPy): indexing typed keys on the host costs
         # an eager JAX dispatch per step; each step syncs with the device only for
         # the action.
         self._act = jax.jit(act)
-        self._behave = jax.jit(lambda acting, obs, key_data: trainer.behave(
-            acting, obs, jax.random.wrap_key_data(key_data)))
-        self._begin = jax.jit(trainer.begin_phase)
-        self._learn = jax.jit(trainer.learn)
+        self._prepare = each(prepare, 0, None)
+        self._behave = jax.jit(each(behave))
+        self._begin = jax.jit(each(trainer.begin_phase))
+        self._learn = jax.jit(each(trainer.learn, 0, None, 0, 0))
 
     def __call__(self, state: TrainState, slack: jax.Array, n: int, length: int
                  ) -> tuple[TrainState, dict]:
@@ -70,40 +87,47 @@ class HostRunner:
             state, rollout, episodes = self.collect(state, slack)
             state, metrics = self._learn(self._begin(state), slack, rollout, episodes)
             history.append(metrics)
-        return state, jax.tree.map(lambda *x: jnp.stack(x), *history)
+        return state, jax.tree.map(lambda *x: jnp.stack(x, int(bool(self.members))), *history)
 
     def collect(self, state: TrainState, slack: jax.Array
                 ) -> tuple[TrainState, Rollout, dict]:
-        """The host counterpart of :meth:`Trainer.collect`."""
-        cfg, env, trainer = self.trainer.config, self.env, self.trainer
-        acting = trainer.acting(state, slack, trainer.phase_of(state.update))
-        key, k_roll = jax.random.split(state.key)
-        keys = np.asarray(jax.random.key_data(jax.random.split(k_roll, cfg.num_steps)))
+        """The host counterpart of :meth:`Trainer.collect` (each member's, stacked)."""
+        cfg, env = self.trainer.config, self.env
+        acting, key, keys = self._prepare(state, slack)
+        keys = np.asarray(keys)
+        members = (self.members, cfg.num_envs) if self.members else (env.num_envs,)
         obs = np.asarray(state.obs)
         stats = jax.tree.map(np.asarray, state.episodes.clear())
         steps: list[tuple] = []
         behaviour: list[tuple] = []
         for t in range(cfg.num_steps):
-            action, log_prob, allowed, explore = self._behave(acting, obs, keys[t])
+            action, log_prob, allowed, explore = self._behave(acting, obs, keys[..., t, :])
             action = np.asarray(action)
-            nxt, reward, term, trunc, final = env.step(action)
-            if not np.isfinite(reward).all():
-                env_i, col = np.argwhere(~np.isfinite(reward))[0]
+            stepped = env.step(action.reshape(env.num_envs, *action.shape[len(members):]))
+            if not np.isfinite(stepped[1]).all():
+                env_i, col = np.argwhere(~np.isfinite(stepped[1]))[0]
                 raise EnvError(f"{env.name} returned a non-finite reward "
-                               f"{reward[env_i, col]} for objective '{env.objectives[col]}' "
-                               f"at update {int(state.update) + 1}, step {t + 1} of its "
+                               f"{stepped[1][env_i, col]} for objective "
+                               f"'{env.objectives[col]}' at update "
+                               f"{int(np.max(state.update)) + 1}, step {t + 1} of its "
                                f"rollout, in copy {env_i}")
+            nxt, reward, term, trunc, final = (x.reshape(*members, *x.shape[1:])
+                                               for x in stepped)
             done = (term | trunc).astype(np.float32)
             stats = stats.update(reward, done)
             steps.append((obs, action, reward, final, term.astype(np.float32), done))
             behaviour.append((log_prob, allowed, explore))
             obs = nxt
-        o, a, r, f, te, d = (jnp.asarray(np.stack(x)) for x in zip(*steps, strict=True))
-        log_prob, allowed, explore = jax.tree.map(lambda *x: jnp.stack(x), *behaviour)
+        time_axis = len(members) - 1  # a member's rollout is [T, N, ...]
+        o, a, r, f, te, d = (jnp.asarray(np.stack(x, time_axis))
+                             for x in zip(*steps, strict=True))
+        log_prob, allowed, explore = jax.tree.map(lambda *x: jnp.stack(x, time_axis),
+                                                  *behaviour)
         rollout = Rollout(o, a, log_prob, r, f, te, d, allowed, explore)
         state = state.replace(obs=jnp.asarray(obs), key=key,
                               episodes=jax.tree.map(jnp.asarray, stats))
-        return state, rollout, stats.summary()
+        summary = jax.vmap(type(stats).summary) if self.members else type(stats).summary
+        return state, rollout, summary(stats)
 
     def greedy_episodes(self, acting: Acting, episodes: int, seed: int) -> Episodes:
         """``episodes`` greedy episodes of the runner's env from ``env.reset(seed)``, as

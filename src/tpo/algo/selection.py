@@ -44,7 +44,12 @@ def select(trainer: Trainer, state: TrainState, slack: jax.Array,
     candidates' greedy episodes. Depends only on the phases' final policies, so
     selecting twice is selecting once."""
     if jnp.ndim(state.update) == 1:  # a population's members
-        returns, pen = jax.vmap(lambda s: candidates(trainer, s, slack, env))(state)
+        if isinstance(env, HostRunner):  # one member's episodes at a time
+            returns, pen = (jnp.stack(x) for x in zip(*(
+                candidates(trainer, jax.tree.map(lambda x, m=m: x[m], state), slack, env)
+                for m in range(state.update.shape[0])), strict=True))
+        else:
+            returns, pen = jax.vmap(lambda s: candidates(trainer, s, slack, env))(state)
         picks = (jax.vmap(partial(selected, trainer, slack))(returns, pen)
                  if selects(trainer) else jnp.full(returns.shape[0], trainer.problem.reference))
         member = select_member(returns, picks, edges(trainer), allowance(trainer, slack),

@@ -79,10 +79,10 @@ class TPO:
                 kind = "discretized" if bounded else "gaussian"
             profile = "continuous" if isinstance(env, ContinuousNav) else "grid"
             self.config = TPOConfig.from_profile(profile, kind)
-        if self.host and population > 1:
-            raise TPOError("a population needs a JAX env (a map), not a Gymnasium env")
         if self.host and env.num_envs != self.config.num_envs:  # a vector env's copies
             self.config = dataclasses.replace(self.config, num_envs=env.num_envs)
+        if self.host and population > 1:  # each member steps its own copies
+            self.env = env = env.copy(population * self.config.num_envs)
         self.eval_env = None if self.host else from_spec(env.to_spec(), evaluation=True)
         if isinstance(graph, str):
             graph = ObjectiveGraph.parse(graph, slack, objectives=env.objectives)
@@ -135,14 +135,15 @@ class TPO:
         (:meth:`resume` continues it).
         """
         trainer = Trainer(self.env, self.graph, self.config, total_timesteps)
-        obs = self.env.reset(self.seed) if self.host else None
+        obs = self._host_obs(self.env.reset(self.seed)) if self.host else None
         members = []
         for m in range(self.population):
             key = jax.random.key(self.seed)
             key = jax.random.fold_in(key, m) if m else key
             old = None if self.state is None else self.member(m)
             design, view = self._member_design(m, len(trainer.views))
-            state = trainer.init(key, None if old is None else old.params, obs, design, view)
+            state = trainer.init(key, None if old is None else old.params,
+                                 None if obs is None else obs[m], design, view)
             members.append(state if old is None else state.replace(value_norm=old.value_norm))
         state = members[0] if self.population == 1 else _stack(members)
         self.trainer, self.state, self._run = trainer, state, None
@@ -163,13 +164,14 @@ class TPO:
         one does."""
         state, trainer = self._need_state(), self._need_trainer()
         if self.host and self._fresh_env:  # a loaded model: the env's episodes restart
+            obs = self._host_obs(self.env.reset(self.seed + self.updates_done))
             state = state.replace(
-                obs=jnp.asarray(self.env.reset(self.seed + int(state.update))),
+                obs=jnp.asarray(obs if self.stacked else obs[0]),
                 episodes=jax.tree.map(jnp.zeros_like, state.episodes))
             self._fresh_env = False
         if self._run is None:
-            self._run = (HostRunner(trainer, self.env) if self.host
-                         else jax_runner(trainer, self.stacked))
+            self._run = (HostRunner(trainer, self.env, self.population * self.stacked)
+                         if self.host else jax_runner(trainer, self.stacked))
             self._select = (partial(select, trainer, env=self._run) if self.host
                             else jax.jit(partial(select, trainer, env=self.eval_env)))
         slack = trainer.slack_array()
@@ -190,6 +192,10 @@ class TPO:
             if callback is not None and callback(metrics, done) is False:
                 break
         return self
+
+    def _host_obs(self, obs: np.ndarray) -> np.ndarray:
+        """A host env's observations ``[M * N, D]`` as each member's ``[M, N, D]``."""
+        return obs.reshape(self.population, -1, *obs.shape[1:])
 
     def _need_state(self) -> TrainState:
         if self.state is None:
