@@ -37,7 +37,7 @@ from tpo.algo import TPO
 from tpo.envs.random_tmdp import random_tmdp
 from tpo.envs.stepped_model import mo_gym_model
 from tpo.graph import ObjectiveGraph
-from tpo.tabular import Judge, evaluate_policy, solve_lar, tolerance
+from tpo.tabular import Judge, evaluate_policy, solve_lar
 
 
 def shape(i: int) -> dict:
@@ -87,11 +87,12 @@ def reach(problem, steps: int, seed: int) -> dict[str, float]:
 def verdict_row(problem, model: TPO, graph: ObjectiveGraph) -> dict:
     """The three verdicts of a learned policy on its problem's model, and its failure."""
     lar = solve_lar(problem.model, graph, relax=True)
-    verdict = Judge(lar)(greedy(model, problem))
+    judge = Judge(lar)
+    verdict = judge(greedy(model, problem))
     below_floor = [w for w, f in verdict.floors.items()
-                   if verdict.values[w] < f - float(tolerance(f))]
-    leaf_short = verdict.values[graph.leaf] < verdict.optimum - float(
-        tolerance(verdict.optimum))
+                   if verdict.values[w] < f - judge.tolerance(w, f)]
+    leaf_short = verdict.values[graph.leaf] < verdict.optimum - judge.tolerance(
+        graph.leaf, verdict.optimum)
     failure = ("" if verdict.lar_correct else "both" if below_floor and leaf_short
                else "ancestor below floor" if below_floor else "leaf below optimum")
     return {"feasible": verdict.feasible, "lar_correct": verdict.lar_correct,

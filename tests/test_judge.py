@@ -8,6 +8,7 @@ from hypothesis import given
 from strategies import SOLVER_SETTINGS, graphs, models
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import Judge, TabularTMDP, solve_lagrangian, solve_lar
+from tpo.tabular.judge import ABS_TOL, value_ranges
 
 
 def detour_model() -> TabularTMDP:
@@ -58,16 +59,29 @@ def test_an_ancestor_below_its_floor_is_not_lar_correct():
 
 def test_a_small_step_outside_the_admissible_set_is_correct_but_not_strict():
     # A bandit at slack 0: action 0 (a = 1, b = 0) is a's best, action 1 (0.9, 0.2) loses
-    # 0.1 of a; within the 0.5 tolerance on every value, but outside A_b.
+    # 0.1 of a; within the maps' absolute tolerance 0.5 on every value, but outside A_b.
     t = np.zeros((2, 2, 2))
     t[:, :, 1] = 1
     r = np.zeros((2, 2, 2))
     r[0] = [(1.0, 0.0), (0.9, 0.2)]
     model = TabularTMDP.from_dense(t, r, ("a", "b"), gamma=0.9,
                                    terminal=np.array([0, 1], bool))
-    verdict = Judge(solve_lar(model, ObjectiveGraph.parse("a>b", 0.0)))(np.array([1, 0]))
+    sol = solve_lar(model, ObjectiveGraph.parse("a>b", 0.0))
+    verdict = Judge(sol, absolute=ABS_TOL)(np.array([1, 0]))
     assert verdict.lar_correct and verdict.same_values
     assert not verdict.strict and verdict.outside == (0,)
+    # Scale-free (the default): a's value range is 1 - 0.9 = 0.1, so its tolerance is
+    # max(0.02 * 1, 0.0025 * 0.1) = 0.02, and losing 0.1 of a is not LAR-correct.
+    judge = Judge(sol)
+    assert judge.absolute == pytest.approx({"a": 0.00025, "b": 0.0005})
+    assert judge.tolerance("a", 1.0) == pytest.approx(0.02)
+    assert not judge(np.array([1, 0])).lar_correct
+
+
+def test_value_ranges_are_each_objectives_best_less_its_worst_at_the_start():
+    # detour: a is 5 by s1 and action 0, 0 by s1 and action 1; b is 0 at best and
+    # -1/2 by s1 and action 0
+    assert value_ranges(detour_model()) == pytest.approx({"a": 5.0, "b": 0.5})
 
 
 @SOLVER_SETTINGS

@@ -13,7 +13,7 @@ from tpo.envs.random_tmdp import random_tmdp
 from tpo.envs.spec import from_spec
 from tpo.envs.tabular_env import TabularEnv
 from tpo.errors import TPOError
-from tpo.tabular import TabularTMDP, solve_lar
+from tpo.tabular import Judge, TabularTMDP, solve_lar
 
 
 def reachable(model: TabularTMDP) -> np.ndarray:
@@ -136,6 +136,19 @@ def test_tpo_trains_on_a_generated_problem_and_is_judged_exactly(tmp_path):
     assert loaded.evaluate(episodes=4)["exact"] == result["exact"]
 
 
+def rescaled(problem, c: float):
+    """The problem with its first root's rewards, and the slack of every edge out of
+    it, multiplied by ``c``: ``(model, graph, root)``."""
+    model, graph = problem.model, problem.graph
+    root = graph.order[0]
+    rewards = model.rewards.copy()
+    rewards[..., model.objectives.index(root)] *= c
+    scaled = TabularTMDP(model.successors, model.probs, rewards, model.objectives, model.gamma,
+                         model.start, model.terminal)
+    slacks = [e.slack * (c if e.parent == root else 1.0) for e in graph.edges]
+    return scaled, graph.with_slack(slacks), root
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("c", [0.01, 100.0])
 def test_lar_is_unchanged_when_one_objective_and_its_slacks_are_rescaled(seed, c):
@@ -147,14 +160,35 @@ def test_lar_is_unchanged_when_one_objective_and_its_slacks_are_rescaled(seed, c
     problem = random_tmdp(seed, states=40, objectives=3, scale_spread=100.0,
                           stochastic=True)
     model, graph = problem.model, problem.graph
-    w = model.objectives.index(graph.order[0])  # a root: its slack matters to its children
-    rewards = model.rewards.copy()
-    rewards[..., w] *= c
-    scaled = TabularTMDP(model.successors, model.probs, rewards, model.objectives, model.gamma,
-                         model.start, model.terminal)
-    slacks = [e.slack * (c if e.parent == graph.order[0] else 1.0) for e in graph.edges]
+    scaled, scaled_graph, root = rescaled(problem, c)  # a root: its slack matters
     before = solve_lar(model, graph).start_values()
-    after = solve_lar(scaled, graph.with_slack(slacks)).start_values()
+    after = solve_lar(scaled, scaled_graph).start_values()
     for name, value in before.items():
-        factor = c if name == graph.order[0] else 1.0
+        factor = c if name == root else 1.0
         assert after[name] == pytest.approx(factor * value, rel=1e-6, abs=1e-6 * factor)
+
+
+@pytest.mark.parametrize("c", [0.01, 100.0])
+def test_the_judge_gives_every_policy_the_same_verdicts_when_an_objective_is_rescaled(c):
+    """The judge's tolerance is scale-free (``0.0025 R_k``): on feasible problems,
+    rescaling one objective (and its slacks) changes no verdict of any policy, here
+    LAR's own with 1-3 states' actions changed, 100 on each of 4 problems, where
+    tolerances decide (with the maps' absolute 0.5, 42 of 400 verdicts change at
+    ``c = 0.01``, where that objective's values all tie)."""
+    rng = np.random.default_rng(7)
+    for seed in range(4):
+        problem = random_tmdp(seed, states=30, objectives=3, scale_spread=100.0,
+                              stochastic=True, slack=(0.0, 0.3))
+        scaled, scaled_graph, _ = rescaled(problem, c)
+        judges = [Judge(solve_lar(m, g)) for m, g in ((problem.model, problem.graph),
+                                                      (scaled, scaled_graph))]
+        policies = []
+        for _ in range(100):
+            policy = judges[0].solution.policy.copy()
+            changed = rng.integers(0, policy.size, rng.integers(1, 4))
+            policy[changed] = rng.integers(0, problem.model.n_actions, changed.size)
+            policies.append(policy)
+        verdicts = [[(v.lar_correct, v.strict, v.same_values) for v in map(j, policies)]
+                    for j in judges]
+        assert verdicts[0] == verdicts[1], seed
+        assert len(set(verdicts[0])) > 1  # the policies are not all judged alike

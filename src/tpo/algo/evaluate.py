@@ -23,6 +23,7 @@ from tpo.envs.continuous_model import continuous_model, path_category
 from tpo.envs.spec import from_spec
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import Judge, evaluate_policy, softmax, solve_lar
+from tpo.tabular.judge import ABS_TOL
 
 Policy = Callable[[Any, jax.Array], Distribution]
 
@@ -37,7 +38,7 @@ def exact_evaluation(policy: Policy, params: Any, env: Any, graph: ObjectiveGrap
     model = env.tabular(gamma).model
     pi = policy(params, jnp.asarray(env.tabular_observations()))
     lar = solve_lar(model, graph, relax=True)
-    verdict = Judge(lar)(np.asarray(pi.mode()))
+    verdict = Judge(lar, env.absolute_tolerance)(np.asarray(pi.mode()))
     stochastic = evaluate_policy(model, softmax(np.asarray(pi.logits, np.float64)))
     return {"exact": {"greedy": verdict.values,
                       "stochastic": dict(zip(model.objectives,
@@ -130,7 +131,7 @@ def reference_evaluation(policy: Policy, params: Any, env: ContinuousNav,
     category beside the reference path's."""
     ref = continuous_model(env, gamma)
     lar = solve_lar(ref.model, graph, relax=True)
-    judge = Judge(lar)
+    judge = Judge(lar, ABS_TOL)
     run = jax.jit(partial(greedy_path, policy, env=noise_free(env, gamma), gamma=gamma))
     positions, alive, returns = map(np.asarray, run(params))
     values = dict(zip(env.objectives, map(float, returns), strict=True))

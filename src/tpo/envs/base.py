@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tpo.envs.maps import OBJECTIVES
+from tpo.tabular.judge import ABS_TOL
 
 
 def nav_reward(avoid: jax.Array, monitor: jax.Array, cell: jax.Array,
@@ -31,6 +32,9 @@ class JaxEnv:
     reward_low = np.array([-1.0, -2.0, -1.0], np.float32)  # per-step bounds of nav_reward
     reward_high = np.array([-1.0, 0.0, 1.0], np.float32)
     params: Any  # the env's parameters, with ``max_steps``
+    #: the judge's absolute tolerance (tpo.tabular.judge): 0.5 on the navigation
+    #: maps; None, scale-free, where rewards have no such unit
+    absolute_tolerance: float | None = ABS_TOL
 
     @property
     def max_steps(self) -> int:

@@ -40,6 +40,7 @@ from tpo.experiments.runspec import ACTION_KINDS, DEFAULT_OBSERVATION, DEFAULT_S
 from tpo.graph import ObjectiveGraph
 from tpo.locking import LOCK_FILE
 from tpo.tabular import VERDICTS, Judge, solve_lar
+from tpo.tabular.judge import ABS_TOL
 
 if TYPE_CHECKING:
     from tpo.envs import ContinuousNav, GridNav
@@ -185,7 +186,7 @@ def exact_curve(spec: SweepSpec) -> dict[str, Any]:
     for x in spec.xs:
         sol = solve_lar(model, graph.with_slack(spec.slack(x)), relax=True)
         stars, values, floors = sol.start_values(), sol.start_policy_values(), \
-            Judge(sol).floors
+            Judge(sol, ABS_TOL).floors
         curve["slacks"].append(spec.slack(x))
         curve["v_star"].append([stars.get(n) for n in objectives])
         curve["lar"].append([values[n] for n in objectives])

@@ -32,6 +32,7 @@ from tpo.envs.spec import from_spec
 from tpo.errors import TPOError
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import VERDICTS, Judge, solve_lar
+from tpo.tabular.judge import ABS_TOL
 
 
 @dataclass(frozen=True)
@@ -216,7 +217,7 @@ def evaluate_reference_sweep(trainer: Trainer, actings: Acting, env: ContinuousN
     solutions = [solve_lar(ref.model, g, relax=True) for g in graphs]
     verdicts = np.zeros((len(graphs), len(seeds), len(VERDICTS)), bool)
     for s, sol in enumerate(solutions):
-        judge, reference = Judge(sol), ref.category(sol.policy)
+        judge, reference = Judge(sol, ABS_TOL), ref.category(sol.policy)
         for n in range(len(seeds)):
             values = dict(zip(objectives, map(float, returns[s, n]), strict=True))
             correct = judge.lar_correct(values, CONTINUOUS_TOL)

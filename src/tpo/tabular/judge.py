@@ -11,7 +11,13 @@ Against a LAR solution (relaxed where the problem is infeasible), a policy is
 - **same values**: every objective of the DAG within ``tol`` of the value of the
   solver's own policy (the lexicographic completion).
 
-``tol(v) = max(0.02 |v|, 0.5)`` of the reference value ``v``.
+The tolerance of objective ``k`` around a reference value ``v`` is
+``tol_k(v) = max(0.02 |v|, a_k)``. Its absolute part ``a_k`` is 0.5 on the
+navigation maps (rewards of -1/0/+1 a step); on any other problem it is
+``0.0025 R_k``, ``R_k`` the objective's value range at the start (its best
+minus its worst value over all policies; 0.5 where ``R_k`` is 200), so that
+multiplying an objective's rewards by a constant changes no verdict
+(docs/design.md §6).
 """
 
 from __future__ import annotations
@@ -26,12 +32,28 @@ from tpo.tabular.lar import LARSolution
 from tpo.tabular.model import TabularTMDP
 
 REL_TOL, ABS_TOL = 0.02, 0.5
+RANGE_SHARE = 0.0025  # of an objective's value range: the scale-free absolute part
+FLOAT_TOL = 1e-9  # the least absolute part: float error, where an objective is constant
 VERDICTS = ("lar_correct", "strict", "same_values")  # the verdicts of a Verdict
 
 
-def tolerance(reference: np.ndarray | float, rel: float = REL_TOL) -> np.ndarray:
-    """``max(rel |v|, 0.5)`` of a reference value ``v`` (``rel`` 0.02 by default)."""
-    return np.maximum(rel * np.abs(reference), ABS_TOL)
+def tolerance(reference: np.ndarray | float, rel: float = REL_TOL,
+              absolute: float = ABS_TOL) -> np.ndarray:
+    """``max(rel |v|, absolute)`` of a reference value ``v`` (by default 2 %, or 0.5)."""
+    return np.maximum(rel * np.abs(reference), absolute)
+
+
+def value_ranges(model: TabularTMDP) -> dict[str, float]:
+    """``R_k``: every objective's best minus its worst value at the start, over all
+    policies (two value iterations each)."""
+    every = np.ones((model.n_states, model.n_actions), bool)
+    out = {}
+    for k, name in enumerate(model.objectives):
+        r = model.rewards[:, :, k]
+        best = restricted_value_iteration(model, r, every)[0][model.start]
+        worst = -restricted_value_iteration(model, -r, every)[0][model.start]
+        out[name] = float(best - worst)
+    return out
 
 
 def floors(solution: LARSolution) -> dict[str, np.ndarray]:
@@ -87,10 +109,18 @@ class Verdict:
     outside: tuple[int, ...]
 
 class Judge:
-    """Judges policies against one solution (its references computed once)."""
+    """Judges policies against one solution (its references computed once).
 
-    def __init__(self, solution: LARSolution) -> None:
+    ``absolute``: the tolerance's absolute part for every objective in reward units
+    (:data:`ABS_TOL` on the navigation maps); by default each objective's own
+    ``RANGE_SHARE * R_k`` (:func:`value_ranges`), which no reward unit changes."""
+
+    def __init__(self, solution: LARSolution, absolute: float | None = None) -> None:
         self.solution = solution
+        model = solution.model
+        self.absolute = ({n: float(absolute) for n in model.objectives} if absolute is not None
+                         else {n: max(RANGE_SHARE * r, FLOAT_TOL)
+                               for n, r in value_ranges(model).items()})
         start = solution.model.start
         self.floors = {w: float(f[start]) for w, f in floors(solution).items()}
         self.optimum = float(solution.values[solution.graph.leaf][start])
@@ -111,17 +141,22 @@ class Judge:
                        self.same_values(values), sol.feasible,
                        values, self.optimum, self.floors, self.reference, outside)
 
+    def tolerance(self, name: str, reference: float, rel: float = REL_TOL) -> float:
+        """``tol_k`` of objective ``name`` around a ``reference`` value."""
+        return float(tolerance(reference, rel, self.absolute[name]))
+
     def same_values(self, values: dict[str, float], rel: float = REL_TOL) -> bool:
-        """Every objective of the DAG within ``tolerance(., rel)`` of LAR's policy's
+        """Every objective of the DAG within its :meth:`tolerance` of LAR's policy's
         value at the start (by value alone, as :meth:`lar_correct`)."""
-        return all(abs(values[n] - self.reference[n]) <= tolerance(self.reference[n], rel)
+        return all(abs(values[n] - self.reference[n]) <= self.tolerance(n, self.reference[n], rel)
                    for n in self.solution.graph.objectives)
 
     def lar_correct(self, values: dict[str, float], rel: float = REL_TOL) -> bool:
-        """LAR-correct by value alone: the leaf's start value ``values`` within
-        ``tolerance(., rel)`` of ``V*_leaf(s0)`` or above it, every ancestor's at
-        least its floor less that tolerance (for values estimated elsewhere, e.g.
-        by Monte Carlo on the continuous env that this solution approximates)."""
+        """LAR-correct by value alone: the leaf's start value ``values`` within its
+        :meth:`tolerance` of ``V*_leaf(s0)`` or above it, every ancestor's at least
+        its floor less its tolerance (for values estimated elsewhere, e.g. by Monte
+        Carlo on the continuous env that this solution approximates)."""
         leaf = self.solution.graph.leaf
-        return bool(values[leaf] >= self.optimum - tolerance(self.optimum, rel) and all(
-            values[w] >= f - tolerance(f, rel) for w, f in self.floors.items()))
+        return bool(values[leaf] >= self.optimum - self.tolerance(leaf, self.optimum, rel)
+                    and all(values[w] >= f - self.tolerance(w, f, rel)
+                            for w, f in self.floors.items()))
