@@ -109,8 +109,11 @@ def test_plain_ppo_and_tpo_learn_a_host_env_and_save_and_load(tmp_path):
                 objectives=["treasure", "time"], config=SMALL, seed=0)
     model.learn(SMALL.batch_size * 4)
     result = model.evaluate(episodes=4)
-    assert set(result) == {"mc"}
     assert set(result["mc"]["greedy"]["undiscounted"]) == {"treasure", "time"}
+    # judged exactly on the env's stepped model: LAR's treasure 23.7 in 19 steps
+    assert result["lar"]["values"] == pytest.approx(
+        {"treasure": 23.7 * 0.99**18, "time": -(1 - 0.99**19) / 0.01}, rel=1e-7)
+    assert {"lar_correct", "strict", "same_values"} <= set(result)
     loaded = TPO.load(model.save(tmp_path / "dst"))
     obs = np.array([0, 0], np.int32)
     assert loaded.predict(obs) == model.predict(obs)
@@ -150,8 +153,9 @@ def test_cli_trains_a_gymnasium_env_into_a_run_directory(tmp_path, capsys):
     assert main(["train", "--env", "mo-gymnasium:deep-sea-treasure-v0", "--objectives",
                  "treasure,time", "--dag", "treasure>time", "--slack", "0", "--steps", "4096",
                  "--out", str(out), "--quiet", "--episodes", "2"]) == 0
-    result = json.loads((out / "eval.json").read_text())
-    assert set(result) == {"mc"}
+    result = json.loads((out / "eval.json").read_text())  # judged on the stepped model
+    assert set(result) == {"mc", "exact", "lar", "lar_correct", "strict", "same_values",
+                           "outside"}
     assert set(result["mc"]["greedy"]["discounted"]) == {"treasure", "time"}
     assert (out / "model" / "model.json").exists() and (out / "metrics.csv").exists()
     capsys.readouterr()

@@ -25,6 +25,7 @@ from tpo.algo.train import Trainer, TrainState
 from tpo.envs.continuous import ContinuousNav
 from tpo.envs.gym_adapter import EnvFactory, HostEnv
 from tpo.envs.spec import Env, from_spec, make_env
+from tpo.envs.stepped_model import host_model_env
 from tpo.errors import DamagedModel, TPOError
 from tpo.graph import ObjectiveGraph
 
@@ -231,7 +232,8 @@ class TPO:
 
     def evaluate(self, episodes: int = 100, seed: int = 0) -> dict[str, Any]:
         """Monte Carlo returns (undiscounted and discounted, greedy and stochastic,
-        mean and std by objective) and, for grid maps, the exact judgement
+        mean and std by objective) and, for grid maps, tabular envs and
+        MO-Gymnasium's finite envs (:mod:`tpo.envs.stepped_model`), the exact judgement
         (:func:`tpo.algo.evaluate.exact_evaluation`): exact values of the greedy and
         stochastic policy, LAR's solution of the same problem, and the verdicts
         ``lar_correct``, ``strict`` and ``same_values``; for the continuous env, the
@@ -254,9 +256,10 @@ class TPO:
                 "undiscounted": summarize(returns["undiscounted"], objectives),
                 "discounted": summarize(returns["discounted"], objectives),
                 "length": float(returns["length"].mean())}
-        if hasattr(self.eval_env, "tabular"):
-            result.update(exact_evaluation(trainer.policy, acting, self.eval_env, self.graph,
-                                           gamma))
+        exact = self.eval_env if hasattr(self.eval_env, "tabular") else (
+            host_model_env(self.env) if self.host else None)
+        if exact is not None:
+            result.update(exact_evaluation(trainer.policy, acting, exact, self.graph, gamma))
         elif isinstance(self.eval_env, ContinuousNav):
             result.update(reference_evaluation(trainer.policy, acting, self.eval_env,
                                                self.graph, gamma))

@@ -20,15 +20,16 @@ the model: its values are those of the infinite-horizon discounted problem.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from tpo.envs.gym_adapter import observation_encoder, quiet
+from tpo.envs.gym_adapter import HostEnv, observation_encoder, quiet
 from tpo.envs.tabular_env import TabularEnv
 from tpo.errors import TPOError
 from tpo.tabular import TabularTMDP
@@ -224,11 +225,27 @@ ACCESS: dict[str, Access] = {
 }
 
 
-def mo_gym_model(env_id: str, gamma: float = 0.99, **kwargs: Any) -> SteppedModel:
-    """The exact model of one of MO-Gymnasium's finite envs (:data:`ACCESS`);
-    ``kwargs`` go to ``gym.make``."""
+def mo_gym_model(env_id: str, gamma: float = 0.99,
+                 objectives: Sequence[str] | None = None, **kwargs: Any) -> SteppedModel:
+    """The exact model of one of MO-Gymnasium's finite envs (:data:`ACCESS`), its
+    objectives named ``objectives`` (by default :data:`ACCESS`'s names); ``kwargs``
+    go to ``gym.make``."""
     if env_id not in ACCESS:
         raise TPOError(f"no stepped model of '{env_id}': known are {', '.join(ACCESS)}")
     import mo_gymnasium  # noqa: F401  (registers the envs)
+    access = ACCESS[env_id]
+    if objectives is not None:
+        access = dataclasses.replace(access, objectives=tuple(objectives))
     return stepped_model(quiet(lambda: gym.make(env_id, disable_env_checker=True, **kwargs)),
-                         ACCESS[env_id], gamma)
+                         access, gamma)
+
+
+def host_model_env(env: HostEnv) -> TabularEnv | None:
+    """The stepped model, as a JAX env, of a host env of one of :data:`ACCESS`'s
+    envs (built by the host env's own factory, so with its arguments), its
+    objectives named as the host env's; else None."""
+    env_id = (env.env_id or "").partition(":")[2]
+    if env_id not in ACCESS:
+        return None
+    access = dataclasses.replace(ACCESS[env_id], objectives=tuple(env.objectives))
+    return stepped_model(env.make, access).env()
