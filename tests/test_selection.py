@@ -16,6 +16,7 @@ from tpo.algo.train import Trainer
 from tpo.envs import OBJECTIVES, load_map
 from tpo.envs.grid import GridNav
 from tpo.graph import ObjectiveGraph
+from tpo.tabular.judge import RANGE_SHARE
 
 # Candidates of M>A>G, phases (monitor, avoid, goal); the last is the leaf's own.
 # Order: the leaf (goal, phase 2) first, then monitor, then avoid.
@@ -86,6 +87,21 @@ def test_a_phase_s_policy_that_the_leaf_beats_on_its_own_objective_is_no_candida
     assert int(select_phase(returns, jnp.zeros(2), [1, 0], 100.0)) == 1
     assert int(select_phase(returns.at[0, 0].set(23.5), jnp.zeros(2), [1, 0],
                             100.0)) == 0  # within 0.5 of the leaf's: it would answer
+
+
+def test_returns_tie_within_a_scale_free_tolerance_off_the_maps():
+    # The same in units of 0.01 treasure: 0.224 against 0.237 ties within 0.5 (and the
+    # faster policy would answer), not within 2 % of 0.237 or 0.0025 of the spread.
+    returns = jnp.array([[0.224, -17.0], [0.237, -19.0]])
+    assert int(select_phase(returns, jnp.zeros(2), [1, 0], 100.0)) == 0
+    absolute = RANGE_SHARE * (returns.max(0) - returns.min(0))
+    assert absolute.tolist() == pytest.approx([0.0025 * 0.013, 0.0025 * 2.0])
+    assert int(select_phase(returns, jnp.zeros(2), [1, 0], 100.0, absolute=absolute)) == 1
+    # the member rule reads the same tolerance: member 0 answers with the faster policy
+    members = jnp.stack([returns, returns[::-1]])
+    picks = jnp.array([0, 0])
+    assert int(select_member(members, picks, [(0, 1)], jnp.zeros(1), [1, 0])) == 0
+    assert int(select_member(members, picks, [(0, 1)], jnp.zeros(1), [1, 0], absolute)) == 1
 
 
 def test_a_reference_before_the_last_candidate():
@@ -163,7 +179,9 @@ def test_a_run_s_pick_holds_the_graph_s_edges_at_their_start_allowance():
     assert selection.edges(trainer) == [(0, 1), (1, 2)]
     np.testing.assert_allclose(selection.allowance(trainer, slack), [10000.0, 0.0], rtol=1e-5)
     returns = jnp.array([[-32.4, 0.0, -16.3], [-100.0, 61.7, -16.3], [-100.0, 0.0, -16.3]])
-    assert int(selection.selected(trainer, slack, returns, jnp.zeros(3))) == 1
+    absolute = selection.absolute_tolerance(trainer, returns)
+    assert absolute.tolist() == [0.5] * 3  # on a map, returns tie within 0.5
+    assert int(selection.selected(trainer, slack, returns, jnp.zeros(3), absolute)) == 1
 
 
 @pytest.fixture(scope="module")
@@ -218,8 +236,8 @@ def test_a_population_answers_with_the_member_and_snapshot_its_returns_pick(thre
     states = jax.tree.map(lambda *x: jnp.stack(x), state, other)
     done = jax.jit(lambda st, sl: select(trainer, st, sl, env))(states, slack)
     returns, penalty = jax.vmap(lambda s: selection.candidates(trainer, s, slack, env))(states)
-    picks = jax.vmap(lambda r, p: selection.selected(trainer, slack, r, p))(returns,
-                                                                                  penalty)
+    picks = jax.vmap(lambda r, p: selection.selected(trainer, slack, r, p, 0.5))(returns,
+                                                                                       penalty)
     m = int(select_member(returns, picks, [(0, 1), (1, 2)], slack / 0.01, ORDER))
     assert int(done.update) == m  # the chosen member's own state ...
     snapshot = jax.tree.map(lambda x: x[m, int(picks[m])], states.snapshots)

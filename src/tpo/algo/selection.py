@@ -29,7 +29,7 @@ from tpo.algo.lagrangian import ancestral_advantages
 from tpo.algo.phases import reward_ranges
 from tpo.algo.runners import HostRunner
 from tpo.algo.train import Trainer, TrainState
-from tpo.tabular.judge import ABS_TOL, REL_TOL
+from tpo.tabular.judge import ABS_TOL, RANGE_SHARE, REL_TOL
 
 SELECT_EPISODES = 16  # greedy episodes per candidate
 
@@ -50,15 +50,17 @@ def select(trainer: Trainer, state: TrainState, slack: jax.Array,
                 for m in range(state.update.shape[0])), strict=True))
         else:
             returns, pen = jax.vmap(lambda s: candidates(trainer, s, slack, env))(state)
-        picks = (jax.vmap(partial(selected, trainer, slack))(returns, pen)
+        absolute = absolute_tolerance(trainer, returns)
+        picks = (jax.vmap(lambda r, p: selected(trainer, slack, r, p, absolute))(returns, pen)
                  if selects(trainer) else jnp.full(returns.shape[0], trainer.problem.reference))
         member = select_member(returns, picks, edges(trainer), allowance(trainer, slack),
-                               tie_order(trainer))
+                               tie_order(trainer), absolute)
         return _acting_with(jax.tree.map(lambda x: x[member], state), picks[member])
     if not selects(trainer):
         return state
     returns, pen = candidates(trainer, state, slack, env)
-    return _acting_with(state, selected(trainer, slack, returns, pen))
+    return _acting_with(state, selected(trainer, slack, returns, pen,
+                                        absolute_tolerance(trainer, returns)))
 
 
 def selects(trainer: Trainer) -> bool:
@@ -104,12 +106,25 @@ def score(trainer: Trainer, state: TrainState, slack: jax.Array, ep: Episodes
             discounted(pen, ep.alive, gamma).mean(0))
 
 
-def selected(trainer: Trainer, slack: jax.Array, returns: jax.Array, pen: jax.Array
-             ) -> jax.Array:
+def absolute_tolerance(trainer: Trainer, returns: jax.Array) -> jax.Array:
+    """The absolute part ``[P]`` of the tolerance by which returns of each phase's
+    objective tie: the env's own (``absolute_tolerance``: 0.5 on a map), else the
+    judge's scale-free ``RANGE_SHARE * R_k`` with the value range ``R_k`` estimated
+    by the spread of the candidates' returns ``[..., P]`` (they lie within it)."""
+    fixed = getattr(trainer.env, "absolute_tolerance", None)
+    flat = returns.reshape(-1, returns.shape[-1])
+    if fixed is not None:
+        return jnp.full(flat.shape[-1], fixed, jnp.float32)
+    return RANGE_SHARE * (flat.max(0) - flat.min(0))
+
+
+def selected(trainer: Trainer, slack: jax.Array, returns: jax.Array, pen: jax.Array,
+             absolute: jax.Array) -> jax.Array:
     """The candidate that a run of ``trainer`` selects (:func:`select_phase`) from the
     candidates' ``returns [P, P]`` and penalty ``[P]``, holding the parents of the leaf's
     constraints at zero ``slack``, among those that keep the leaf's ancestral edges
-    by LAR's rule on the candidates."""
+    by LAR's rule on the candidates; returns tie within :func:`absolute_tolerance`'s
+    ``absolute`` or 2 %."""
     prob, terms = trainer.problem, trainer.terms
     leaf = leaf_phase(trainer)
     ranges = reward_ranges(trainer.env.reward_low, trainer.env.reward_high)[prob.reward]
@@ -117,7 +132,8 @@ def selected(trainer: Trainer, slack: jax.Array, returns: jax.Array, pen: jax.Ar
     held = jnp.zeros(prob.n_phases, bool).at[jnp.asarray(prob.head)].max(zero)
     return select_phase(returns, pen, tie_order(trainer),
                         trainer.config.select_penalty * float(ranges[prob.head].max(initial=1.0)),
-                        held, prob.reference, edges(trainer), allowance(trainer, slack))
+                        held, prob.reference, edges(trainer), allowance(trainer, slack),
+                        absolute)
 
 
 def edges(trainer: Trainer) -> list[tuple[int, int]]:
@@ -153,7 +169,8 @@ def _acting_with(state: TrainState, snapshot: jax.Array) -> TrainState:
 def select_phase(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
            penalty_tolerance: float | jax.Array, held: jax.Array | None = None,
            reference: int = -1, edges: Sequence[tuple[int, int]] = (),
-           allowance: jax.Array | None = None) -> jax.Array:
+           allowance: jax.Array | None = None,
+           absolute: float | jax.Array = ABS_TOL) -> jax.Array:
     """The index of the selected candidate, by the tie rule on greedy returns.
 
     ``returns [N, P]``: candidate ``n``'s return of phase ``p``'s objective;
@@ -172,16 +189,18 @@ def select_phase(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
 
     Of those, the best on each phase of ``order`` in turn (the leaf, then its
     ancestors roots first); the reference if still tied, else the latest.
-    Returns tie as the verdicts do: within 2 % or 0.5.
+    Returns tie as the verdicts do: within 2 % or ``absolute`` (a number or one
+    per phase ``[P]``).
     """
     if edges and allowance is None:
         raise ValueError("select_phase: edges need their allowance")
     n = returns.shape[0]
     ref = returns[reference]
-    tolerance = _tolerance(ref)
+    absolute = jnp.broadcast_to(jnp.asarray(absolute, jnp.float32), ref.shape)
+    tolerance = _tolerance(ref, absolute)
     own = jnp.diagonal(returns) >= ref - tolerance
     if edges:  # [objective, candidate]: keeps the objective's ancestral edges
-        kept = keepers(returns, returns, edges, allowance, max(order) + 1)
+        kept = keepers(returns, returns, edges, allowance, max(order) + 1, absolute)
         # a reference that loses an objective's parents says nothing of its optimum
         own = own | jnp.zeros(n, bool).at[:kept.shape[0]].set(~kept[:, reference])
     keep = own & (penalty <= penalty[reference] + penalty_tolerance)
@@ -203,7 +222,8 @@ def select_phase(returns: jax.Array, penalty: jax.Array, order: Sequence[int],
 
 
 def select_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[int, int]],
-                  allowance: jax.Array, order: Sequence[int]) -> jax.Array:
+                  allowance: jax.Array, order: Sequence[int],
+                  absolute: float | jax.Array = ABS_TOL) -> jax.Array:
     """The index of the answering member of a population, by LAR's rule on their returns.
 
     ``returns [M, N, P]``: member ``m``'s candidate ``n``'s return of phase ``p``'s
@@ -218,34 +238,39 @@ def select_member(returns: jax.Array, picks: jax.Array, edges: Sequence[tuple[in
     allowance and the judge's tolerance. Among the answers that keep the leaf's
     ancestral edges (all of them if none does), the best on ``order`` (the leaf
     first, then its ancestors roots first), ties as in :func:`select_phase`; the first
-    such member.
+    such member. Returns tie within 2 % or ``absolute`` (one number or one per phase).
     """
     m, n = returns.shape[:2]
+    absolute = jnp.broadcast_to(jnp.asarray(absolute, jnp.float32), returns.shape[-1:])
     answers = returns[jnp.arange(m), picks]
-    lar = keepers(returns.reshape(m * n, -1), answers, edges, allowance, max(order) + 1)[-1]
+    lar = keepers(returns.reshape(m * n, -1), answers, edges, allowance, max(order) + 1,
+                  absolute)[-1]
     keep = lar | ~lar.any()
     for p in order:
         top = jnp.max(jnp.where(keep, answers[:, p], -jnp.inf))
-        keep = keep & (answers[:, p] >= top - _tolerance(top))
+        keep = keep & (answers[:, p] >= top - _tolerance(top, absolute[p]))
     return jnp.argmax(keep)
 
 
 def keepers(pool: jax.Array, values: jax.Array, edges: Sequence[tuple[int, int]],
-            allowance: jax.Array, objectives: int) -> jax.Array:
+            allowance: jax.Array, objectives: int,
+            absolute: float | jax.Array = ABS_TOL) -> jax.Array:
     """Which of ``values [N, P]`` keep each objective's ancestral edges by LAR's
     rule on the policies' returns ``pool [M, P]`` (:func:`select_member`): taking the
     objectives (the first ``objectives`` columns) in topological order, ``w``'s best
     is its largest return among the policies of ``pool`` that keep ``w``'s ancestral
     edges, and a policy keeps the edge ``(w, v)`` (``edges[e]``) when its return of
     ``w`` is at least that best less ``allowance[e]`` and the judge's tolerance.
-    ``[objectives, N]`` bool (a root's row all true)."""
+    ``[objectives, N]`` bool (a root's row all true); ``absolute``: as
+    :func:`select_phase`'s."""
+    absolute = jnp.broadcast_to(jnp.asarray(absolute, jnp.float32), pool.shape[-1:])
     in_pool, in_values, best = [], [], []
     for v in range(objectives):
         keep_pool = jnp.ones(pool.shape[0], bool)
         keep_values = jnp.ones(values.shape[0], bool)
         for e, (w, child) in enumerate(edges):
             if child == v:
-                floor = best[w] - allowance[e] - _tolerance(best[w])
+                floor = best[w] - allowance[e] - _tolerance(best[w], absolute[w])
                 keep_pool = keep_pool & in_pool[w] & (pool[:, w] >= floor)
                 keep_values = keep_values & in_values[w] & (values[:, w] >= floor)
         in_pool.append(keep_pool)
@@ -254,6 +279,6 @@ def keepers(pool: jax.Array, values: jax.Array, edges: Sequence[tuple[int, int]]
     return jnp.stack(in_values)
 
 
-def _tolerance(value: jax.Array) -> jax.Array:
-    """The judge's tolerance around ``value``: 2 %, or 0.5."""
-    return jnp.maximum(REL_TOL * jnp.abs(value), ABS_TOL)
+def _tolerance(value: jax.Array, absolute: jax.Array) -> jax.Array:
+    """The judge's tolerance around ``value``: 2 %, or ``absolute``."""
+    return jnp.maximum(REL_TOL * jnp.abs(value), absolute)

@@ -90,6 +90,8 @@ class HostEnv:
     (Gymnasium's own vector envs assume scalar rewards, and MO-Gymnasium's reset
     a step late.)"""
 
+    absolute_tolerance = None  # returns tie scale-free: rewards have any unit
+
     def __init__(self, make: EnvFactory, objectives: Sequence[str], num_envs: int,
                  env_id: str | None = None, envs: Sequence[gym.Env] | None = None) -> None:
         make = self.make = quiet(make)
