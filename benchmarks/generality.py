@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import time
 
@@ -69,15 +70,17 @@ def greedy(model: TPO, problem) -> np.ndarray:
     return np.asarray(model.predict(obs)).astype(np.int64)
 
 
-def reach(problem, steps: int, seed: int) -> dict[str, float]:
-    """Plain PPO's reach of each objective alone: ``(v - v_uniform) / (v* - v_uniform)``."""
+def reach(problem, steps: int, seed: int, env=None) -> dict[str, float]:
+    """Plain PPO's reach of each objective alone on ``env`` (by default the problem's
+    JAX env with exploring starts): ``(v - v_uniform) / (v* - v_uniform)``."""
     m = problem.model
+    env = problem.env(random_start=True) if env is None else env
     uniform = evaluate_policy(m, np.full((m.n_states, m.n_actions), 1 / m.n_actions))
     out = {}
     for i, name in enumerate(m.objectives):
         alone = ObjectiveGraph((name,))
         best = solve_lar(m, alone).start_values()[name]
-        learner = TPO(problem.env(random_start=True), alone, seed=seed).learn(steps)
+        learner = TPO(env, alone, objectives=m.objectives, seed=seed).learn(steps)
         value = evaluate_policy(m, greedy(learner, problem))[m.start, i]
         base = uniform[m.start, i]
         out[name] = float((value - base) / (best - base)) if best > base else 1.0
@@ -137,15 +140,25 @@ def mo_gym_cases() -> list[tuple[str, ObjectiveGraph, float]]:
 
 
 def mo_gym_case(env_id: str, graph: ObjectiveGraph, share: float, steps: int,
-                population: int, path: str, seed: int) -> dict:
+                population: int, path: str, seed: int, ppo: bool) -> dict:
     stepped = mo_gym_model(env_id)
     env = f"mo-gymnasium:{env_id}" if path == "host" else stepped.env()
     start = time.perf_counter()
     model = TPO(env, graph, objectives=stepped.model.objectives, seed=seed,
                 population=population).learn(steps)
-    return {"env": env_id, "dag": graph.spec, "share": share, "path": path,
-            **verdict_row(stepped, model, graph),
-            "seconds": round(time.perf_counter() - start, 1)}
+    row = {"env": env_id, "dag": graph.spec, "share": share, "path": path,
+           **verdict_row(stepped, model, graph),
+           "seconds": round(time.perf_counter() - start, 1)}
+    if ppo:
+        row["ppo_reach"] = mo_gym_reach(env_id, steps, path)
+    return row
+
+
+@functools.cache
+def mo_gym_reach(env_id: str, steps: int, path: str) -> dict[str, float]:
+    """Plain PPO's reach of each objective of an MO-Gymnasium env (seed 0), once per env."""
+    stepped = mo_gym_model(env_id)
+    return reach(stepped, steps, 0, f"mo-gymnasium:{env_id}" if path == "host" else stepped.env())
 
 
 def main() -> None:
@@ -165,7 +178,7 @@ def main() -> None:
         print(json.dumps(rows[-1]), flush=True)
     for j, (env_id, graph, share) in enumerate(mo_gym_cases() if args.mo_gym else ()):
         rows.append(mo_gym_case(env_id, graph, share, args.steps, args.population,
-                                args.mo_gym, j))
+                                args.mo_gym, j, args.ppo))
         print(json.dumps(rows[-1]), flush=True)
     n = len(rows)
     for verdict in ("lar_correct", "strict", "same_values"):
