@@ -27,7 +27,6 @@ env's stepped model (``tpo.envs.stepped_model``).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import functools
 import json
 import time
@@ -39,6 +38,7 @@ from tpo.envs.random_tmdp import random_tmdp
 from tpo.envs.stepped_model import mo_gym_model
 from tpo.graph import ObjectiveGraph
 from tpo.tabular import Judge, evaluate_policy, solve_lar
+from tpo.tabular.judge import value_ranges
 
 
 def shape(i: int) -> dict:
@@ -118,23 +118,17 @@ def case(i: int, steps: int, population: int, ppo: bool) -> dict:
     return row
 
 
-def value_range(m, name: str) -> float:
-    """``max - min`` over policies of objective ``name``'s value at the start."""
-    alone = ObjectiveGraph((name,))
-    worst = dataclasses.replace(m, rewards=-m.rewards)
-    return solve_lar(m, alone).start_values()[name] + solve_lar(worst, alone).start_values()[name]
-
-
 def mo_gym_cases() -> list[tuple[str, ObjectiveGraph, float]]:
     """``(env id, DAG with its slacks, share)`` of every MO-Gymnasium case: each edge's
     global slack is the share of its parent's value range (local slack: times 1 - gamma)."""
     cases = []
     for env_id, dags in MO_GYM.items():
         m = mo_gym_model(env_id).model
+        ranges = value_ranges(m)
         for dag in dags:
             graph = ObjectiveGraph.parse(dag, 0.0).bind(m.objectives)
             for share in SHARES:
-                slacks = [(1 - m.gamma) * share * value_range(m, e.parent) for e in graph.edges]
+                slacks = [(1 - m.gamma) * share * ranges[e.parent] for e in graph.edges]
                 cases.append((env_id, graph.with_slack(slacks), share))
     return cases
 

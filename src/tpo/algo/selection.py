@@ -111,7 +111,7 @@ def absolute_tolerance(trainer: Trainer, returns: jax.Array) -> jax.Array:
     objective tie: the env's own (``absolute_tolerance``: 0.5 on a map), else the
     judge's scale-free ``RANGE_SHARE * R_k`` with the value range ``R_k`` estimated
     by the spread of the candidates' returns ``[..., P]`` (they lie within it)."""
-    fixed = getattr(trainer.env, "absolute_tolerance", None)
+    fixed = trainer.env.absolute_tolerance
     flat = returns.reshape(-1, returns.shape[-1])
     if fixed is not None:
         return jnp.full(flat.shape[-1], fixed, jnp.float32)

@@ -24,6 +24,7 @@ import dataclasses
 from collections import deque
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import gymnasium as gym
@@ -74,16 +75,17 @@ class SteppedModel:
 
     def index(self, key: Hashable) -> int:
         """The state of a key."""
-        return self._index[key]
+        return self._states[key]
+
+    @cached_property
+    def _states(self) -> dict[Hashable, int]:
+        return {k: i for i, k in enumerate(self.keys)}
 
     def env(self, random_start: bool = False, max_steps: int = 100) -> TabularEnv:
         """The model as a pure JAX env (vmappable; exploring starts with
         ``random_start``), observed as the real env is; MO-Gymnasium's time limit
         is 100 steps."""
         return TabularEnv(self.model, self.observations, max_steps, random_start)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "_index", {k: i for i, k in enumerate(self.keys)})
 
 
 class _Draw:
