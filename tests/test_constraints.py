@@ -28,7 +28,8 @@ def terms(**changes) -> ConstraintTerms:
                 margin=np.zeros(1, f32), tolerance=np.zeros(1, f32), loose=np.zeros(1, bool),
                 telescoped=np.zeros(1, bool), dead_zone=np.zeros(1, f32),
                 tie=np.zeros((2, 2), f32), tie_bound=np.zeros(2, f32), tie_critic="ancestors",
-                advantage="immediate", gamma=0.5, lam=0.5, second_tolerance=0.1)
+                advantage="immediate", gamma=0.5, lam=0.5, second_tolerance=0.1,
+                second_floor=np.full(1, 0.02, f32))
     return ConstraintTerms(**{**base, **changes})
 
 
@@ -104,7 +105,10 @@ def test_the_second_design_traces_the_penalty_by_gamma_and_counts_from_the_sprea
     np.testing.assert_allclose(loose_tolerance(t, jnp.int32(1), jnp.array([3.0, 1.0])), [0.3],
                                rtol=1e-6)  # 0.1 of the avoid head's spread 3
     np.testing.assert_allclose(loose_tolerance(t, jnp.int32(1), jnp.array([0.1, 1.0])), [0.02],
-                               rtol=1e-6)  # at least SECOND_FLOOR
+                               rtol=1e-6)  # at least the floor
+    wide = terms(second_floor=np.array([2.0], np.float32))  # a range of 200: 0.01 of it
+    np.testing.assert_allclose(loose_tolerance(wide, jnp.int32(1), jnp.array([3.0, 1.0])),
+                               [2.0])
 
 
 def test_the_tie_break_adds_the_ancestors_advantages_bounded_and_traced():
@@ -142,3 +146,4 @@ def test_the_restriction_form_pays_no_penalty_and_telescopes_nothing():
     assert paid.weights.tolist() == [[0.0], [1.0]] and paid.telescoped.tolist() == [True]
     assert paid.margin.tolist() == pytest.approx([0.3])  # 0.15 of avoid's range 2
     assert paid.tolerance.tolist() == pytest.approx([0.4])  # 0.2 of it
+    assert paid.second_floor.tolist() == pytest.approx([0.02])  # 0.01 of it

@@ -139,14 +139,10 @@ def test_tpo_trains_on_a_generated_problem_and_is_judged_exactly(tmp_path):
 def rescaled(problem, c: float):
     """The problem with its first root's rewards, and the slack of every edge out of
     it, multiplied by ``c``: ``(model, graph, root)``."""
-    model, graph = problem.model, problem.graph
+    graph = problem.graph
     root = graph.order[0]
-    rewards = model.rewards.copy()
-    rewards[..., model.objectives.index(root)] *= c
-    scaled = TabularTMDP(model.successors, model.probs, rewards, model.objectives, model.gamma,
-                         model.start, model.terminal)
     slacks = [e.slack * (c if e.parent == root else 1.0) for e in graph.edges]
-    return scaled, graph.with_slack(slacks), root
+    return problem.model.rescaled(root, c), graph.with_slack(slacks), root
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -21,8 +21,9 @@ from tpo.algo.lagrangian import ancestral_advantages, lagrangian_advantages, vio
 from tpo.algo.losses import discounted_cumsum
 from tpo.algo.phases import Problem, reward_ranges, value_bounds
 
-#: the second design's least tolerance of a loose constraint, in value units
-SECOND_FLOOR = 0.02
+#: the second design's least tolerance of a loose constraint, a share of the
+#: parent's one-step reward range
+SECOND_FLOOR = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,6 +57,7 @@ class ConstraintTerms:
         gamma, lam: the discount and GAE's lambda.
         second_tolerance: the second design's loose tolerance, a share of the
             parent head's value spread (``config.second_tolerance``).
+        second_floor: ``[C]`` its least value: :data:`SECOND_FLOOR` of the range.
     """
 
     reward: np.ndarray
@@ -75,6 +77,7 @@ class ConstraintTerms:
     gamma: float
     lam: float
     second_tolerance: float
+    second_floor: np.ndarray
 
     @classmethod
     def build(cls, problem: Problem, config: TPOConfig, reward_low: np.ndarray,
@@ -107,7 +110,7 @@ class ConstraintTerms:
                    (config.dead_zone * ranges * cost * telescoped).astype(np.float32),
                    tie, (config.tie_break * phase_ranges).astype(np.float32),
                    config.tie_critic, config.advantage, config.gamma, config.gae_lambda,
-                   config.second_tolerance)
+                   config.second_tolerance, (SECOND_FLOOR * ranges).astype(np.float32))
 
     def slacks(self, slack: jax.Array) -> jax.Array:
         """Every constraint's slack ``[C]`` from the edges' ``slack [n_edges]`` (zero
@@ -183,9 +186,9 @@ def loose_tolerance(terms: ConstraintTerms, design: jax.Array, spread: jax.Array
     """The tolerance ``[C]`` from which a loose constraint counts: ``terms.tolerance``;
     in a population's second design (``design`` 1), ``second_tolerance`` times the
     spread (std) ``[P]`` of its parent head's value targets, at least
-    :data:`SECOND_FLOOR`."""
+    ``terms.second_floor``."""
     second = jnp.maximum(terms.second_tolerance * spread[jnp.asarray(terms.head)],
-                         SECOND_FLOOR)
+                         jnp.asarray(terms.second_floor))
     return jnp.where(design == 1, second, jnp.asarray(terms.tolerance))
 
 

@@ -146,6 +146,12 @@ class TabularTMDP:
         """The same model with another discount."""
         return replace(self, gamma=gamma)
 
+    def rescaled(self, objective: str, c: float) -> TabularTMDP:
+        """The same model with ``objective``'s rewards multiplied by ``c``."""
+        rewards = self.rewards.copy()
+        rewards[..., self.index(objective)] *= c
+        return replace(self, rewards=rewards)
+
     @cached_property
     def deterministic(self) -> bool:
         """Whether every ``(s, a)`` has a single successor."""
