@@ -82,8 +82,9 @@ def test_train_writes_a_run_directory_and_eval_reads_it(tmp_path, capsys):
     printed = capsys.readouterr().out.splitlines()
     assert printed[0].split() == ["objective", "learned", "LAR", "V*", "floor"]
     assert printed[3].startswith("monitor") and printed[5].startswith("LAR-correct: ")
-    assert sorted(p.name for p in out.iterdir()) == [".tpo.lock", "checkpoints", "config.toml",
-                                                      "eval.json", "metrics.csv", "model", "tb"]
+    assert sorted(p.name for p in out.iterdir()) == [".tpo.lock", ".tpo.run", "checkpoints",
+                                                      "config.toml", "eval.json", "metrics.csv",
+                                                      "model", "tb"]
     assert [p.name for p in (out / "checkpoints").iterdir()] == ["update-000006"]
     assert any(p.name.startswith("events.out.tfevents") for p in (out / "tb").iterdir())
     result = json.loads((out / "eval.json").read_text())

@@ -42,7 +42,8 @@ def test_a_full_disk_mid_run_is_one_line_and_the_run_resumes_identically(
     err = capsys.readouterr().err
     assert err == "tpo: error: No space left on device\n", err
     assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["update-000016"]
-    assert not [p for p in run.rglob(".*") if p.name != ".tpo.lock"]  # no temporaries
+    assert not [p for p in run.rglob(".*") if p.name not in (".tpo.lock", ".tpo.run")
+                ]  # no temporaries
     assert main(["train", "--resume", str(run), "--quiet", "--episodes", "2"]) == 0
     assert json.loads((run / "eval.json").read_text()) == \
         json.loads((whole / "eval.json").read_text())

@@ -3,6 +3,7 @@ started (issue 15, item 1): nothing a user made is deleted."""
 
 import json
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -22,8 +23,6 @@ def finished(tmp_path_factory) -> Path:
 
 
 def copy_run(src: Path, dst: Path) -> Path:
-    import shutil
-
     shutil.copytree(src, dst)
     return dst
 
@@ -40,13 +39,50 @@ def test_force_refuses_a_directory_with_files_tpo_does_not_write(finished, tmp_p
     assert sorted(p.name for p in run.iterdir()) == before
 
 
-def test_force_refuses_a_directory_that_is_not_a_run(tmp_path, capsys):
+NOT_A_RUN = ("it is not a tpo run (it has no .tpo.run marker and no saved model in model/ "
+             "or checkpoints/)")
+
+
+@pytest.mark.parametrize("files", [
+    {"config.toml": 'map = "small"\n'},  # a user's config.toml that tpo would train
+    {"config.toml": ""},
+    {"config.toml": "answer = 42\n"},
+    {"config.toml": 'map = "small"\n', "notes.txt": "mine", "data/raw.csv": "1,2\n"},
+    {"notes.txt": "mine", "data/raw.csv": "1,2\n"},
+    {"model/model.json": '{"format": 99}', "model/state.msgpack": "x"},  # not tpo's format
+])
+def test_force_refuses_a_directory_that_is_not_a_run(tmp_path, capsys, files):
     mine = tmp_path / "mine"
-    mine.mkdir()
-    (mine / "config.toml").write_text("answer = 42\n")  # someone else's config.toml
+    for name, text in files.items():
+        (mine / name).parent.mkdir(parents=True, exist_ok=True)
+        (mine / name).write_text(text)
     assert main(["train", *TINY, "--out", str(mine), "--force"]) == 2
-    assert "is not a tpo run" in capsys.readouterr().err
-    assert (mine / "config.toml").read_text() == "answer = 42\n"
+    assert capsys.readouterr().err == f"tpo: error: --force will not replace {mine}: " \
+        f"{NOT_A_RUN}\n"
+    assert {str(p.relative_to(mine)): p.read_text() for p in mine.rglob("*")
+            if p.is_file()} == files  # intact, and no lock left behind
+    assert [p.name for p in tmp_path.iterdir()] == ["mine"]
+
+
+def test_an_empty_directory_is_filled_not_replaced(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["train", *TINY, "--out", str(empty), "--force"]) == 0
+    assert (empty / ".tpo.run").is_file() and (empty / "eval.json").is_file()
+
+
+def test_a_run_made_before_the_marker_counts_by_its_saved_model(finished, tmp_path):
+    from tpo.experiments.runs import is_run
+
+    run = copy_run(finished, tmp_path / "run")
+    (run / ".tpo.run").unlink()
+    assert is_run(run)  # by model/ and checkpoints/update-N/
+    shutil.rmtree(run / "model")
+    assert is_run(run)  # killed before its end: by its checkpoints
+    assert main(["train", *TINY, "--out", str(run), "--force", "--seed", "1"]) == 0
+    assert "seed = 1" in (run / "config.toml").read_text()
+    assert (run / ".tpo.run").is_file() and (run / "model" / "model.json").is_file()
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]
 
 
 @pytest.mark.parametrize("where", [".", "..", "~", "/"])

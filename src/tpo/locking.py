@@ -3,13 +3,16 @@ sweep or reproduction directory for as long as they work in it.
 
 The lock is ``fcntl.flock`` on ``DIR/.tpo.lock``, which also records the holder's
 pid. The kernel drops it when the holder exits, however it exits, so a killed
-run never leaves a stale lock behind.
+run never leaves a stale lock behind. The lock is opened without following a
+symlink, and only a regular file with no other name is written to.
 """
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
+import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -41,7 +44,7 @@ def exclusive(directory: str | Path, create: bool = False) -> Iterator[Path]:
             pass
     path = directory / LOCK_FILE
     existed = path.exists()
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    fd = _open_lock(path)
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -61,3 +64,22 @@ def exclusive(directory: str | Path, create: bool = False) -> Iterator[Path]:
             raise
     finally:
         os.close(fd)
+
+
+def _open_lock(path: Path) -> int:
+    """Open (or create) the lock file ``path`` without following a symlink; raise
+    :class:`LockError` if it is a symlink, or not a regular file of its own (a
+    hard link or a special file), which writing the pid would change."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            raise LockError(f"{path} is a symlink; tpo writes through no link in a "
+                            "directory it works in: remove it") from None
+        raise
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode) or info.st_nlink != 1:
+        os.close(fd)
+        raise LockError(f"{path} is not a lock file of its own (a hard link or a special "
+                        "file); remove it")
+    return fd

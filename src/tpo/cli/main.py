@@ -343,10 +343,13 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_render(args: argparse.Namespace) -> int:
     from tpo.envs.render import save_figure
     from tpo.experiments.picture import policy_figure
+    from tpo.experiments.runs import check_no_links
 
     run_dir = Path(args.run_dir)
     outs = ([check_plot_file(args.out, args.force, "--out")] if args.out
             else [run_dir / "policy.png", run_dir / "policy.pdf"])  # the run's own files
+    if not args.out:
+        check_no_links(run_dir, [out.name for out in outs])
     for out in outs:
         if out.is_dir():
             raise UsageError(f"{out} is a directory; move it, or pass --out FILE")

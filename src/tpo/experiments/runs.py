@@ -9,11 +9,13 @@ read::
       checkpoints/update-N/ the whole training state after update N (a saved model)
       model/                the final model (``TPO.load``)
       eval.json             ``mc``, ``exact`` and ``lar`` of :meth:`TPO.evaluate`
+      .tpo.run              the marker of a directory tpo made a run in
       .tpo.lock             held by the one tpo command working in the run
 
 Every file is written whole and renamed into place (or, for the metrics,
 truncated back to the last checkpoint on resume), so a kill never leaves a
-file that a later run trusts half-written.
+file that a later run trusts half-written. Nothing is written through a
+symlink: a run with one where tpo writes is refused (:func:`check_no_links`).
 """
 
 from __future__ import annotations
@@ -26,15 +28,16 @@ import re
 import shutil
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tpo.algo import TPO
+from tpo.algo.persist import FORMAT
 from tpo.atomic import write_atomic
-from tpo.errors import DamagedModel, TPOError
+from tpo.errors import DamagedModel
 from tpo.experiments.runspec import RunError, RunSpec
 from tpo.locking import LOCK_FILE
 
@@ -42,6 +45,9 @@ METRICS = ("episode_return", "episode_length", "penalty", "violation_rate", "exc
            "policy_loss",
            "value_loss", "entropy", "approx_kl", "lr")
 CHECKPOINTS = 10  # per run, at chunk boundaries
+MARKER = ".tpo.run"  # written when tpo makes a run directory: --force may replace it
+#: what tpo writes in a run, its lock aside (tpo.locking opens that without following a link)
+WRITES = (MARKER, "config.toml", "metrics.csv", "eval.json", "tb", "checkpoints", "model")
 
 
 class MetricsLog:
@@ -103,13 +109,56 @@ def checkpoints(run_dir: Path) -> list[Path]:
     return sorted(found, key=lambda p: int(p.name.split("-")[1]))
 
 
+def check_no_links(run_dir: Path, names: Iterable[str] = WRITES) -> None:
+    """Raise :class:`RunError`, before anything is written, if one of ``names`` in
+    ``run_dir`` or anything under it is a symlink: tpo writes through no link, so
+    nothing outside the run is ever changed through one."""
+    for name in names:
+        link = _first_link(run_dir / name)
+        if link is not None:
+            raise RunError(f"{link} is a symlink; tpo writes through no link in a run "
+                           "directory: replace it with the file or folder itself")
+
+
+def _first_link(path: Path) -> Path | None:
+    """``path`` if it is a symlink, else the first symlink under it, or None."""
+    if path.is_symlink():
+        return path
+    for parent, folders, files in os.walk(path):  # lists links, follows none
+        for name in sorted(folders + files):
+            if (Path(parent) / name).is_symlink():
+                return Path(parent) / name
+    return None
+
+
+def is_run(directory: Path) -> bool:
+    """Whether ``directory`` is a tpo run: it holds tpo's marker (:data:`MARKER`),
+    or, made before the marker, a saved model of a format tpo writes in ``model/``
+    or ``checkpoints/update-N/``."""
+    marker = directory / MARKER
+    if marker.is_file() and not marker.is_symlink():
+        return True
+    return any(_saved_by_tpo(p) for p in [directory / "model",
+                                          *directory.glob("checkpoints/update-*")])
+
+
+def _saved_by_tpo(model: Path) -> bool:
+    """Whether ``model`` holds a ``state.msgpack`` beside a ``model.json`` whose
+    ``format`` is one tpo has written."""
+    try:
+        meta = json.loads((model / "model.json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    found = meta.get("format") if isinstance(meta, dict) else None
+    return type(found) is int and 1 <= found <= FORMAT and \
+        (model / "state.msgpack").is_file()
 
 
 def check_replaceable(out: Path) -> None:
     """Raise :class:`RunError` unless ``--force`` may replace ``out``: a tpo run
-    directory (its ``config.toml`` a run's, nothing in it that tpo does not write)
-    that is not the working directory or one of its parents, the home directory
-    or a filesystem root."""
+    (:func:`is_run`) holding nothing that tpo does not write, that is not the
+    working directory or one of its parents, the home directory or a filesystem
+    root."""
     where = out.resolve()
     if where == Path(where.anchor) or where == Path.home().resolve() \
             or Path.cwd().resolve().is_relative_to(where):
@@ -120,15 +169,13 @@ def check_replaceable(out: Path) -> None:
                        "directory itself")
     if not out.is_dir():
         raise RunError(f"--force will not replace {out}: not a run directory")
+    if not is_run(out):
+        raise RunError(f"--force will not replace {out}: it is not a tpo run (it has no "
+                       f"{MARKER} marker and no saved model in model/ or checkpoints/)")
     foreign = _foreign(out)
     if foreign:
         raise RunError(f"--force will not replace {out}: it holds "
                        f"{str(foreign.relative_to(out))!r}, which tpo does not write in a run")
-    try:
-        RunSpec.from_toml(out / "config.toml")
-    except (OSError, TPOError) as err:
-        raise RunError(f"--force will not replace {out}: it is not a tpo run ({err})"
-                       ) from None
 
 
 MODEL_FILES = ("model.json", "state.msgpack")
@@ -137,15 +184,15 @@ CHECKPOINT = re.compile(r"\.?update-\d+(\..+)?")  # a checkpoint, or its tempora
 
 def _foreign(run: Path) -> Path | None:
     """The first file or directory in ``run`` that tpo does not write there (a
-    symlink anywhere included), or None. A run holds its three files and lock,
+    symlink anywhere included), or None. A run holds its three files, marker and lock,
     ``model/`` and ``checkpoints/update-N/`` holding a saved model's two files,
     TensorBoard event files in ``tb/``, and tpo.atomic's temporaries of these."""
     for entry in sorted(run.iterdir()):
         name = entry.name
         if entry.is_symlink():
             return entry
-        if name in ("config.toml", "metrics.csv", "eval.json", LOCK_FILE) or \
-                name.startswith((".config.toml.", ".metrics.csv.", ".eval.json.")):
+        if name in ("config.toml", "metrics.csv", "eval.json", MARKER, LOCK_FILE) or \
+                name.startswith((".config.toml.", ".metrics.csv.", ".eval.json.", f"{MARKER}.")):
             bad = None if entry.is_file() else entry
         elif name == "model" or name.startswith(".model."):
             bad = _not_a_model(entry)
@@ -218,8 +265,9 @@ def _entries(directory: Path) -> list[Path]:
 
 def create_run(out: str | Path, spec: RunSpec, force: bool = False
                ) -> tuple[Path, Replaced | None]:
-    """Make the run directory with its ``config.toml``, under the directory's lock
-    (:func:`tpo.locking.exclusive`, which the caller holds). An existing run
+    """Make the run directory with its marker and ``config.toml``, under the
+    directory's lock (:func:`tpo.locking.exclusive`, which the caller holds). An
+    existing run
     directory is kept unless ``force``, and then only a tpo run is replaced
     (:func:`check_replaceable`): its files are moved aside and returned, for
     :func:`train_run` to remove once the new run has started."""
@@ -236,6 +284,7 @@ def create_run(out: str | Path, spec: RunSpec, force: bool = False
         replaced = Replaced(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
+        write_atomic(out / MARKER, "a tpo run: tpo train --force may replace this directory\n")
         write_atomic(out / "config.toml", spec.to_toml())
     except BaseException:
         if replaced is not None:
@@ -293,6 +342,7 @@ def train_run(run_dir: str | Path, episodes: int = 100, progress: Progress | Non
 def _train(run_dir: Path, episodes: int, progress: Progress | None, chunk_updates: int,
            replaced: Replaced | None, trust_module: str | None) -> dict[str, Any]:
     check_not_stranded(run_dir, replaced)
+    check_no_links(run_dir)
     saved = checkpoints(run_dir)
     spec = RunSpec.from_toml(run_dir / "config.toml", saved=bool(saved))
     model = spec.model()
