@@ -56,9 +56,9 @@ def test_an_unwritable_out_is_one_line(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(tpo.atomic.tempfile, "mkstemp", refuse)
     assert main(["train", *ARGS, "--out", str(tmp_path / "x")]) == 2
-    # The file tpo was writing, not the temporary one mkstemp was making.
+    # The file tpo was writing (its run marker, the first), not mkstemp's temporary.
     assert capsys.readouterr().err == (f"tpo: error: Permission denied: "
-                                       f"{tmp_path / 'x' / 'config.toml'}\n")
+                                       f"{tmp_path / 'x' / '.tpo.run'}\n")
     assert not (tmp_path / "x").exists()  # the directory made for the run is gone
 
 
